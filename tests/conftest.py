@@ -1,0 +1,32 @@
+"""Shared fixtures. Real-data tests skip on a laptop without the data, but fail in CI."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from walkdiff.paths import data_root
+
+REQUIRE_DATA = bool(os.environ.get("CI") or os.environ.get("WALKDIFF_REQUIRE_DATA"))
+
+
+def _real(name: str) -> Path:
+    path = data_root() / name
+    if not path.is_dir():
+        msg = f"real data not found at {path.resolve()} (set WALKDIFF_DATA)"
+        if REQUIRE_DATA:
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return path
+
+
+@pytest.fixture(scope="session")
+def xia_dir() -> Path:
+    return _real("xia")
+
+
+@pytest.fixture(scope="session")
+def zeggs_dir() -> Path:
+    return _real("zeggs")

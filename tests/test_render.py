@@ -1,0 +1,219 @@
+"""Stick-figure GIF/PNG previews: file format, timing, framing, colours, atomic writes and bad input."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from PIL import Image, ImageSequence
+
+from walkdiff import render
+from walkdiff.errors import WalkdiffError
+from walkdiff.render import render_gif, render_png
+
+NAMES = ["Hips", "Spine", "Head", "LeftUpLeg", "LeftFoot", "RightUpLeg", "RightFoot", "LeftHand", "RightHand"]
+PARENTS = np.array([-1, 0, 1, 0, 3, 0, 5, 1, 1])
+
+
+def walker(frames: int = 120, fps: float = 60, speed: float = 1.2, scale: float = 1.0) -> np.ndarray:
+    """A figure walking along +X: legs and arms swing at 1 Hz, root bobs a little. (F, 9, 3), Y up."""
+    t = np.arange(frames)[:, None] / fps
+    swing = 0.3 * np.sin(2 * np.pi * t)
+    hips = np.hstack([speed * t, 0.95 + 0.02 * np.cos(4 * np.pi * t), 0 * t])
+    spine = hips + [0.0, 0.5, 0.0]
+    joints = [
+        hips,
+        spine,
+        spine + [0.0, 0.25, 0.0],
+        hips + [0.0, 0.0, 0.1],
+        hips + np.hstack([swing, -0.9 + 0 * t, 0.1 + 0 * t]),
+        hips + [0.0, 0.0, -0.1],
+        hips + np.hstack([-swing, -0.9 + 0 * t, -0.1 + 0 * t]),
+        spine + np.hstack([-swing, -0.6 + 0 * t, 0.2 + 0 * t]),
+        spine + np.hstack([swing, -0.6 + 0 * t, -0.2 + 0 * t]),
+    ]
+    return np.stack(joints, axis=1) * scale
+
+
+def gif_frames(path) -> tuple[list[np.ndarray], list[int]]:
+    with Image.open(path) as image:
+        assert image.format == "GIF"
+        frames = [np.asarray(f.convert("RGB")) for f in ImageSequence.Iterator(image)]
+        image.seek(0)
+        delays = []
+        for k in range(image.n_frames):
+            image.seek(k)
+            delays.append(image.info["duration"])
+    return frames, delays
+
+
+def mask(frame: np.ndarray, color: tuple[int, int, int]) -> np.ndarray:
+    return (frame == np.array(color, dtype=np.uint8)).all(axis=-1)
+
+
+def extent(m: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(m)
+    return rows.min(), rows.max(), cols.min(), cols.max()
+
+
+@pytest.mark.parametrize(("fps", "max_fps", "step"), [(120, 30, 4), (25, 30, 1), (60, 24, 3)])
+def test_gif_frames_timing_and_size(tmp_path, fps, max_fps, step):
+    num = 101
+    path = render_gif(tmp_path / "walk.gif", [walker(num, fps), walker(num // 2, fps)], PARENTS, fps,
+                      max_fps=max_fps, size=(160, 120))  # fmt: skip
+    frames, delays = gif_frames(path)
+    assert len(frames) == len(range(0, num, step))
+    assert frames[0].shape == (120, 2 * 160, 3)
+    # GIF delays are whole centiseconds: each is within 10 ms of the true frame time, and they add up.
+    frame_ms = 1000 * step / fps
+    assert all(d % 10 == 0 and abs(d - frame_ms) < 10 for d in delays)
+    assert abs(sum(delays) - len(frames) * frame_ms) <= 5
+
+
+def test_gif_different_poses_give_different_frames(tmp_path):
+    moving = render_gif(tmp_path / "moving.gif", walker(60, 30), PARENTS, 30, size=(120, 120))
+    still = render_gif(tmp_path / "still.gif", np.repeat(walker(1), 60, axis=0), PARENTS, 30, size=(120, 120))
+    moving_frames, _ = gif_frames(moving)
+    still_frames, _ = gif_frames(still)
+    figure = slice(0, 100)  # above the clock in the bottom-left corner
+    assert not np.array_equal(moving_frames[0][figure], moving_frames[7][figure])
+    assert np.array_equal(still_frames[0][figure], still_frames[7][figure])
+    assert not np.array_equal(still_frames[0], still_frames[7])  # the clock moves on
+
+
+def test_trail_is_drawn_behind_the_walker(tmp_path):
+    body = (200, 0, 0)
+    clip = walker(90, 30)  # walks along +X, which the camera shows going right
+    with_trail, _ = gif_frames(render_gif(tmp_path / "a.gif", clip, PARENTS, 30, colors=[body]))
+    without, _ = gif_frames(render_gif(tmp_path / "b.gif", clip, PARENTS, 30, colors=[body], trail=False))
+    newest = render._mix(body, render.TRAIL_SHADES / (render.TRAIL_SHADES + 1))  # the trail's strongest shade
+    trail = mask(with_trail[-1], newest)
+    assert trail.sum() > 20
+    assert np.nonzero(trail)[1].mean() < 160 - 20  # left of the root, which stays in the middle
+    assert mask(without[-1], newest).sum() == 0
+    assert mask(with_trail[0], newest).sum() == 0  # nothing walked yet
+
+
+def test_left_and_right_limbs_are_coloured_by_name(tmp_path):
+    named, _ = gif_frames(render_gif(tmp_path / "n.gif", walker(30), PARENTS, 30, names=NAMES))
+    plain, _ = gif_frames(render_gif(tmp_path / "p.gif", walker(30), PARENTS, 30))
+    for color in (render.LEFT, render.RIGHT):
+        assert mask(named[0], color).sum() > 50
+        assert mask(plain[0], color).sum() == 0
+
+
+@pytest.mark.parametrize(
+    ("name", "side"),
+    [("LeftUpLeg", "L"), ("LHipJoint", "L"), ("l_hip", "L"), ("hip.L", "L"), ("RThumb", "R"),
+     ("RightForeArm", "R"), ("hip_r", "R"), ("LowerBack", None), ("Root", None), ("Hips", None),
+     ("Head", None)],
+)  # fmt: skip
+def test_joint_side_from_name(name, side):
+    assert render._side(name) == {"L": render.LEFT, "R": render.RIGHT, None: None}[side]
+
+
+def test_upright_framed_and_equal_scale(tmp_path):
+    big, small = (200, 0, 0), (0, 0, 200)
+    clips = [walker(120, 30, speed=3.0), walker(120, 30, speed=3.0, scale=0.5)]
+    frames, _ = gif_frames(
+        render_gif(tmp_path / "s.gif", clips, PARENTS, 30, colors=[big, small], size=(150, 200))
+    )
+    for frame in (frames[0], frames[-1]):  # 12 m walked: the camera follows the root
+        top, bottom, left, right = extent(mask(frame[:, :150], big))
+        assert 0 < top and bottom < 199 and 0 < left and right < 149
+        assert abs((left + right) / 2 - 75) < 30
+        small_top, small_bottom, _, _ = extent(mask(frame[:, 150:], small))
+        # One scale for all clips: the half-size figure is half as tall on screen.
+        assert (small_bottom - small_top) / (bottom - top) == pytest.approx(0.5, abs=0.08)
+    named = gif_frames(render_gif(tmp_path / "u.gif", clips[0], PARENTS, 30, names=NAMES))[0][0]
+    # Upright: the head (centre colour) is above both feet.
+    head_top = extent(mask(named, render.BODY))[0]
+    assert head_top < extent(mask(named, render.LEFT))[1] - 100
+    assert head_top < extent(mask(named, render.RIGHT))[1] - 100
+
+
+def test_png_filmstrip(tmp_path):
+    path = render_png(tmp_path / "strip.png", [walker(90), walker(60)], PARENTS, frames=4, size=(100, 120),
+                      titles=["a", "b"], names=NAMES)  # fmt: skip
+    with Image.open(path) as image:
+        assert image.format == "PNG"
+        assert image.size == (4 * 100, 2 * 120)
+        strip = np.asarray(image.convert("RGB"))
+    cells = [strip[:120, k * 100 : (k + 1) * 100] for k in range(4)]
+    assert all(mask(cell, render.LEFT).any() for cell in cells)
+    assert not np.array_equal(cells[0], cells[1])
+
+
+def test_atomic_write_leaves_only_the_result(tmp_path, monkeypatch):
+    target = tmp_path / "out" / "walk.gif"
+    render_gif(target, walker(20), PARENTS, 30)
+    render_png(tmp_path / "out" / "walk.png", walker(20), PARENTS)
+    assert sorted(p.name for p in target.parent.iterdir()) == ["walk.gif", "walk.png"]
+    before = target.read_bytes()
+
+    def broken_save(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Image.Image, "save", broken_save)
+    with pytest.raises(OSError, match="disk full"):
+        render_gif(target, walker(40), PARENTS, 30)
+    assert sorted(p.name for p in target.parent.iterdir()) == ["walk.gif", "walk.png"]
+    assert target.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("positions", "match"),
+    [
+        (np.zeros((10, 9)), r"\(frames, 9, 3\)"),
+        (np.zeros((10, 8, 3)), r"\(frames, 9, 3\)"),
+        (np.zeros((10, 9, 2)), r"\(frames, 9, 3\)"),
+        (np.zeros((0, 9, 3)), r"\(frames, 9, 3\)"),
+        ([walker(10), np.zeros((10, 9))], r"positions\[1\].*\(frames, 9, 3\)"),
+        (np.full((10, 9, 3), np.nan), "NaN"),
+        ([], "no clip"),
+    ],
+)
+def test_bad_positions_raise(tmp_path, positions, match):
+    with pytest.raises(WalkdiffError, match=match):
+        render_gif(tmp_path / "x.gif", positions, PARENTS, 30)
+    with pytest.raises(WalkdiffError, match=match):
+        render_png(tmp_path / "x.png", positions, PARENTS)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"parents": [0, 0, 1, 0, 3, 0, 5, 1, 1]}, "-1 for the root"),
+        ({"parents": [-1, 0, 1, 0, 3, 0, 5, 1, 12]}, "bad at"),
+        ({"parents": np.zeros((3, 3), dtype=int)}, r"\(J,\)"),
+        ({"fps": 0}, "fps"),
+        ({"max_fps": 100}, "max_fps"),
+        ({"titles": ["a", "b"]}, "titles must have 1"),
+        ({"names": NAMES[:3]}, "names must have 9"),
+        ({"colors": [(1, 2)]}, "colors"),
+        ({"size": (10, 200)}, "size"),
+    ],
+)
+def test_bad_arguments_raise(tmp_path, kwargs, match):
+    args = {"parents": PARENTS, "fps": 30} | kwargs
+    with pytest.raises(WalkdiffError, match=match):
+        render_gif(tmp_path / "x.gif", walker(10), args.pop("parents"), args.pop("fps"), **args)
+
+
+def test_real_xia_clip_renders_quickly(xia_dir, tmp_path):
+    pybvh = pytest.importorskip("pybvh")
+    clip = pybvh.read_bvh_file(xia_dir / "neutral_01_000.bvh")
+    parents = np.full(clip.joint_count, -1)
+    for child, parent in clip.edges:
+        parents[child] = parent
+    positions = clip.joint_positions()[:300]
+    start = time.perf_counter()
+    path = render_gif(tmp_path / "xia.gif", positions, parents, clip.fps, names=clip.joint_names)
+    elapsed = time.perf_counter() - start
+    frames, _ = gif_frames(path)
+    assert len(frames) == 75  # 300 frames at 120 fps shown at 30 fps
+    assert elapsed < 5.0  # about 0.15 s on one core; generous for a shared CI machine
+    top, bottom, left, right = extent(mask(frames[-1], render.LEFT))
+    assert 0 < top < bottom < 319 and 0 < left < right < 319

@@ -1,0 +1,149 @@
+"""Every N epochs: the evaluation protocol on a fixed number of generated windows, into the MLflow run."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from torchmetrics.classification import MulticlassConfusionMatrix
+
+from walkdiff.evaluation import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
+from walkdiff.tracking import log_file
+
+
+class MotionMetrics(L.Callback):
+    """Logs `metrics/fmd`, `metrics/style_acc`, `metrics/diversity`, `metrics/skate_ratio`, ... and the
+    images `metrics/epoch_NNNN/style_confusion.png` and `metrics/epoch_NNNN/feature_pca.png`.
+
+    Rank 0 generates and scores; the values are broadcast so that every rank logs the same numbers (and a
+    ModelCheckpoint may monitor them). The real test windows are embedded once; the generation noise is
+    the same at every epoch, so successive values differ by the model only.
+
+    Args:
+        evaluator_ckpt: checkpoint of a trained `MotionEvaluator`.
+        every_n_epochs: measure after the validation of every N-th epoch.
+        num_samples: generated windows, balanced over styles (and over the data's content selection).
+        sampler, steps, guidance: passed to the model's `generate`.
+        batch_size: windows generated at once.
+        seed: seed of the generation noise and of the metrics' random pairs.
+    """
+
+    def __init__(
+        self,
+        evaluator_ckpt: str,
+        every_n_epochs: int = 5,
+        num_samples: int = 256,
+        sampler: str = "ddpm",
+        steps: int | None = None,
+        guidance: float = 1.0,
+        batch_size: int = 128,
+        seed: int = 0,
+    ):
+        self.evaluator_ckpt = evaluator_ckpt
+        self.every_n_epochs = every_n_epochs
+        self.num_samples = num_samples
+        self.sampler = sampler
+        self.steps = steps
+        self.guidance = guidance
+        self.batch_size = batch_size
+        self.seed = seed
+        self.scorer: MotionScorer | None = None
+        self.real: WindowSet | None = None
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        epoch = trainer.current_epoch + 1
+        if trainer.sanity_checking or epoch % self.every_n_epochs:
+            return
+        values = None
+        if trainer.is_global_zero:
+            values = self.measure(trainer, pl_module, f"metrics/epoch_{epoch:04d}")
+        values = trainer.strategy.broadcast(values, src=0)
+        for name, value in values.items():
+            pl_module.log(f"metrics/{name}", value, on_step=False, on_epoch=True, sync_dist=False)
+
+    def _prepare(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """Load the evaluator and embed the real test windows, once."""
+        if self.scorer is not None:
+            return
+        datamodule = trainer.datamodule
+        evaluator = load_evaluator(self.evaluator_ckpt, pl_module.device)
+        skeleton = pl_module.skeleton or datamodule.skeleton
+        self.scorer = MotionScorer(evaluator, skeleton, pl_module.spec["fps"], batch_size=self.batch_size)
+        self.real = self.scorer.embed(window_set(datamodule.split_features("test"), pl_module.spec["window"]))
+        self.scorer.set_reference(self.real)
+        contents = list(pl_module.spec["contents"])
+        self.content_ids = [contents.index(name) for name in datamodule.selection.names]
+
+    @torch.no_grad()
+    def measure(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, artifact_dir: str
+    ) -> dict[str, float]:
+        self._prepare(trainer, pl_module)
+        generator = torch.Generator(device=pl_module.device).manual_seed(self.seed)
+        windows = generate_windows(
+            pl_module,
+            self.num_samples,
+            self.content_ids,
+            generator,
+            self.batch_size,
+            sampler=self.sampler,
+            steps=self.steps,
+            guidance=self.guidance,
+        )
+        generated = self.scorer.embed(windows)
+        values = self.scorer.score(generated, seed=self.seed)
+        styles = list(pl_module.spec["styles"])
+        with tempfile.TemporaryDirectory() as tmp:
+            confusion = Path(tmp) / "style_confusion.png"
+            projection = Path(tmp) / "feature_pca.png"
+            matrix = MulticlassConfusionMatrix(len(styles), normalize="true")(
+                generated.style_logits, generated.style
+            )
+            confusion_figure(matrix.numpy(), styles, confusion)
+            projection_figure(self.real, generated, styles, projection)
+            for path in (confusion, projection):
+                log_file(trainer.logger, path, artifact_dir)
+        return values
+
+
+def confusion_figure(matrix: np.ndarray, names: list[str], path: Path) -> None:
+    """Rows: requested style; columns: style the evaluator recognises; cells: share of the row."""
+    figure = Figure(figsize=(6, 5.2), layout="constrained")
+    ax = figure.add_subplot()
+    image = ax.imshow(matrix, vmin=0, vmax=1, cmap="Blues")
+    ax.set_xticks(range(len(names)), names, rotation=45, ha="right")
+    ax.set_yticks(range(len(names)), names)
+    ax.set_xlabel("recognised style")
+    ax.set_ylabel("requested style")
+    for (row, col), value in np.ndenumerate(matrix):
+        ax.text(col, row, f"{value:.2f}", ha="center", va="center", color="white" if value > 0.5 else "black",
+                fontsize=7)  # fmt: skip
+    figure.colorbar(image, ax=ax, shrink=0.8)
+    figure.savefig(path, dpi=100)
+
+
+def projection_figure(real: WindowSet, generated: WindowSet, names: list[str], path: Path) -> None:
+    """Evaluator features of real and generated windows on the first two principal axes of both together."""
+    features = torch.cat([real.features, generated.features]).double()
+    centred = features - features.mean(dim=0)
+    # Principal axes from the SVD of the centred data: exact, and cheap for a few hundred points.
+    _, _, vt = torch.linalg.svd(centred, full_matrices=False)
+    points = (centred @ vt[:2].T).numpy()
+    real_points, generated_points = points[: len(real)], points[len(real) :]
+    figure = Figure(figsize=(6.5, 5), layout="constrained")
+    ax = figure.add_subplot()
+    colours = [f"C{i % 10}" for i in range(len(names))]
+    for style, name in enumerate(names):
+        ax.scatter(*real_points[real.style.numpy() == style].T, s=14, marker="o", facecolors="none",
+                   edgecolors=colours[style], linewidths=0.8, label=name)  # fmt: skip
+        ax.scatter(*generated_points[generated.style.numpy() == style].T, s=14, marker="x",
+                   color=colours[style], linewidths=0.8)  # fmt: skip
+    ax.set_xlabel("PC 1")
+    ax.set_ylabel("PC 2")
+    ax.set_title("evaluator features: o real test, x generated")
+    ax.legend(fontsize=7, ncols=2, loc="best")
+    figure.savefig(path, dpi=100)

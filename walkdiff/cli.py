@@ -1,0 +1,147 @@
+"""The `walkdiff` command: Lightning's fit/validate/test plus the tools users run on their motion."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from walkdiff.errors import WalkdiffError
+
+LIGHTNING_VERBS = ("fit", "validate", "test")
+
+
+def lightning_cli(args: list[str]) -> None:
+    """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`."""
+    from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
+
+    from walkdiff.data.datamodule import MotionDataModule
+    from walkdiff.tracking import check_tracking_uri
+
+    class LogConfigToMLflow(SaveConfigCallback):
+        """MLflow's sqlite URI has no log_dir: the resolved config goes into the run instead."""
+
+        def save_config(self, trainer, pl_module, stage) -> None:
+            from walkdiff.tracking import log_text
+
+            text = self.parser.dump(self.config, skip_none=False)
+            log_text(trainer.logger, text, "config.yaml")
+            if trainer.logger is not None:
+                trainer.logger.log_hyperparams(self.config.as_flat())
+
+    class WalkdiffCLI(LightningCLI):
+        def add_arguments_to_parser(self, parser) -> None:
+            parser.link_arguments("data.spec", "model.init_args.data_spec", apply_on="instantiate")
+
+        def before_instantiate_classes(self) -> None:
+            config = self.config[self.subcommand] if self.subcommand else self.config
+            logger = config.trainer.logger
+            uri = getattr(getattr(logger, "init_args", None), "tracking_uri", None)
+            if uri:
+                check_tracking_uri(uri)
+
+    import lightning as L
+
+    WalkdiffCLI(
+        L.LightningModule,
+        MotionDataModule,
+        subclass_mode_model=True,
+        subclass_mode_data=True,
+        save_config_callback=LogConfigToMLflow,
+        save_config_kwargs={"save_to_log_dir": False},
+        parser_kwargs={"parser_mode": "omegaconf"},
+        args=args,
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="walkdiff",
+        description="Diffusion-based motion synthesis. Training verbs: "
+        + ", ".join(LIGHTNING_VERBS)
+        + " (LightningCLI; `walkdiff fit --help`).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("inspect", help="summarise a BVH file: joints, frames, fps, contacts, anything suspicious")
+    p.add_argument("file")
+    p.add_argument("--dataset", default="xia", help="contact thresholds of this dataset (default xia)")
+
+    p = sub.add_parser("convert", help="BVH -> features -> BVH, optionally resampled and/or mirrored")
+    p.add_argument("input")
+    p.add_argument("output")
+    p.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
+    p.add_argument("--mirror", action="store_true", help="swap left and right")
+    p.add_argument("--dataset", default="xia", help="contact thresholds of this dataset (default xia)")
+
+    p = sub.add_parser(
+        "evaluate", help="FMD, recognition accuracy, diversity, skating, jitter over repeats: report.json/.md"
+    )
+    p.add_argument("--ckpt", help="generator checkpoint (not needed with --real-only)")
+    p.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    p.add_argument("--out", required=True, help="folder for report.json and report.md")
+    p.add_argument("--num", type=int, default=1000, help="windows per repeat (default 1000)")
+    p.add_argument("--repeats", type=int, default=20, help="repeats (default 20)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--real-only", action="store_true", help="only the real reference rows")
+    p.add_argument("--sampler", choices=("ddpm", "ddim"), default="ddpm")
+    p.add_argument("--steps", type=int, default=None, help="DDIM steps")
+    p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance weight")
+    p.add_argument("--split", choices=("test", "val"), default="test", help="real reference split")
+    p.add_argument("--contents", default=None, help="content groups (default: the model's; or walk)")
+    p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
+    p.add_argument("--cache-dir", default=None, help="feature cache (default: as in the checkpoint)")
+    p.add_argument("--stride", type=int, default=1, help="frames between real windows (default 1)")
+    p.add_argument("--batch-size", type=int, default=500, help="windows generated / scored at once")
+    p.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    p.add_argument("--mlflow-experiment", default=None, help="log metrics and reports into an MLflow run")
+
+    p = sub.add_parser("bench", help="benchmarks; results written as JSON")
+    bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    b = bench.add_parser("data", help="cold/warm preprocessing of the dataset and DataLoader throughput")
+    b.add_argument("--out", required=True)
+    b.add_argument("--dataset", default="xia")
+    b.add_argument("--root", default=None)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] in LIGHTNING_VERBS:
+            lightning_cli(argv)
+            return 0
+        args = build_parser().parse_args(argv)
+        if args.command is None:
+            build_parser().print_help()
+            return 2
+        return run_command(args)
+    except WalkdiffError as error:
+        print(f"walkdiff: error: {error}", file=sys.stderr)
+        return 1
+
+
+def run_command(args: argparse.Namespace) -> int:
+    if args.command == "inspect":
+        from walkdiff.tools import inspect_file
+
+        print(inspect_file(args.file, args.dataset))
+    elif args.command == "convert":
+        from walkdiff.tools import convert_file
+
+        print(convert_file(args.input, args.output, fps=args.fps, mirror_sides=args.mirror, dataset=args.dataset))
+    elif args.command == "evaluate":
+        from walkdiff.evaluation import evaluate
+
+        options = vars(args).copy()
+        del options["command"]
+        report = evaluate(**options)
+        print(f"wrote {args.out}/report.json and report.md in {report['elapsed_s']} s")
+    elif args.command == "bench":
+        from walkdiff import bench
+
+        bench.run(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,199 @@
+"""`MotionDataModule`: any dataset module -> normalised feature windows for Lightning."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from walkdiff.data.clips import ClipInfo, ContentSelection
+from walkdiff.data.datasets import dataset_module
+from walkdiff.data.preprocess import ProcessedClips, preprocess
+from walkdiff.errors import WalkdiffError
+from walkdiff.motion.representation import FeatureLayout, Normalizer
+from walkdiff.motion.skeleton import Skeleton
+from walkdiff.paths import dataset_dir
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """What a model needs to know about its data; linked into the model by the CLI."""
+
+    dataset: str
+    feature_dim: int
+    num_joints: int
+    window: int
+    fps: float
+    styles: tuple[str, ...]
+    contents: tuple[str, ...]
+
+
+class WindowDataset(Dataset):
+    """Fixed-length windows cut inside clips (never across them), normalised on the fly."""
+
+    def __init__(self, clips: list[tuple[ClipInfo, str, np.ndarray]], window: int, stride: int, norm: Normalizer):
+        self.features = [torch.from_numpy(norm.normalize(f)) for _, _, f in clips]
+        self.labels = [(c.style, c.content, name) for c, name, _ in clips]
+        self.index = [
+            (i, start)
+            for i, f in enumerate(self.features)
+            for start in range(0, f.shape[0] - window + 1, stride)
+        ]
+        self.window = window
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, i: int) -> dict:
+        clip, start = self.index[i]
+        style, content, name = self.labels[clip]
+        return {
+            "features": self.features[clip][start : start + self.window],
+            "style": style,
+            "content": content,
+            "clip": name,
+        }
+
+
+class MotionDataModule(L.LightningDataModule):
+    """Windows of motion features with style and content labels.
+
+    Args:
+        dataset: which dataset module reads the files (`xia`, `humanact12`).
+        root: data root; default $WALKDIFF_DATA, else ./data.
+        contents: content groups to use: 'walk' (the paper), 'all', or a comma-separated list.
+        fps: frame rate the clips are resampled to.
+        window: frames per training window. Xia's clips are short (walking: median 40 frames at
+            30 fps), so 24 keeps 99% of the walking; longer motion is generated window by window.
+        stride: frames between window starts.
+        mirror: add left/right mirrored copies of the training clips.
+        cache_dir: where preprocessed features are kept.
+        on_error: 'fail' on an unreadable clip, or 'skip' it with a warning that lists it.
+        preprocess_workers: processes for the first (cold) preprocessing.
+    """
+
+    def __init__(
+        self,
+        dataset: str = "xia",
+        root: str | None = None,
+        contents: str = "walk",
+        fps: float = 30.0,
+        window: int = 24,
+        stride: int = 4,
+        mirror: bool = True,
+        batch_size: int = 32,
+        num_workers: int = 0,
+        cache_dir: str = ".cache/walkdiff",
+        on_error: str = "fail",
+        preprocess_workers: int = 2,
+    ):
+        super().__init__()
+        self.save_hyperparameters()
+        self.module = dataset_module(dataset)
+        if window < 2 or stride < 1:
+            raise WalkdiffError(f"data.window must be >= 2 and data.stride >= 1, got {window} and {stride}")
+        self.selection = ContentSelection.parse(contents, self.module.GROUPS)
+        self.folder = dataset_dir(dataset, root)
+        self.clips = self.module.list_clips(self.folder)
+        self.splits = self.module.split_clips(self.clips, self.selection)
+        self.processed: ProcessedClips | None = None
+        self.normalizer: Normalizer | None = None
+        self.datasets: dict[str, WindowDataset] = {}
+
+    @property
+    def spec(self) -> DataSpec:
+        """Known before any preprocessing: the joint count comes from one clip's hierarchy."""
+        num_joints = self.module.load(self.clips[0]).skeleton.num_joints
+        return DataSpec(
+            dataset=self.hparams.dataset,
+            feature_dim=FeatureLayout(num_joints).dim,
+            num_joints=num_joints,
+            window=self.hparams.window,
+            fps=self.hparams.fps,
+            styles=tuple(self.module.STYLES),
+            contents=tuple(self.module.GROUPS),
+        )
+
+    @property
+    def skeleton(self) -> Skeleton:
+        self._ensure_processed()
+        return self.processed.skeleton
+
+    def _ensure_processed(self, progress: bool = True) -> ProcessedClips:
+        if self.processed is None:
+            h = self.hparams
+            self.processed = preprocess(
+                h.dataset,
+                self.clips,
+                fps=h.fps,
+                mirror=h.mirror,
+                cache_dir=Path(h.cache_dir),
+                on_error=h.on_error,
+                workers=h.preprocess_workers,
+                progress=progress,
+            )
+        return self.processed
+
+    def prepare_data(self) -> None:
+        self._ensure_processed()
+
+    def split_features(self, split: str, mirrored: bool = False) -> list[tuple[ClipInfo, str, np.ndarray]]:
+        """(clip, name, features) of every readable clip of a split; mirrored copies when asked."""
+        processed = self._ensure_processed()
+        position = {name: i for i, name in enumerate(processed.names)}
+        out = []
+        for clip in self.splits[split]:
+            if clip.name not in position:  # left out by on_error=skip, which warned already
+                continue
+            i = position[clip.name]
+            out.append((clip, clip.name, processed.features[i]))
+            if mirrored and processed.mirrored is not None:
+                out.append((clip, clip.name + "#mirror", processed.mirrored[i]))
+        return out
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.datasets:
+            return
+        h = self.hparams
+        train = self.split_features("train", mirrored=h.mirror)
+        self.normalizer = Normalizer.fit(np.concatenate([f for _, _, f in train]))
+        parts = {"train": train, "val": self.split_features("val"), "test": self.split_features("test")}
+        for split, clips in parts.items():
+            self.datasets[split] = WindowDataset(clips, h.window, h.stride, self.normalizer)
+            short = [name for _, name, f in clips if f.shape[0] < h.window]
+            if short:
+                log.warning(
+                    f"{split}: {len(short)} of {len(clips)} clips are shorter than the {h.window}-frame "
+                    f"window and give no windows: {', '.join(short[:10])}{' ...' if len(short) > 10 else ''}"
+                )
+            if len(self.datasets[split]) == 0:
+                raise WalkdiffError(
+                    f"the {split} split has no {h.window}-frame windows; use a shorter data.window"
+                )
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        self.setup()
+        return DataLoader(
+            self.datasets[split],
+            batch_size=self.hparams.batch_size,
+            shuffle=shuffle,
+            drop_last=shuffle,
+            num_workers=self.hparams.num_workers,
+            persistent_workers=self.hparams.num_workers > 0,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)

@@ -1,0 +1,164 @@
+"""Clips -> per-frame feature arrays, computed once and cached on disk.
+
+The cache key hashes every source file's bytes and every setting that changes the features, so an
+edited file, a new clip or a different frame rate rebuilds the cache, and nothing else does.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from walkdiff.data.clips import ClipInfo
+from walkdiff.data.datasets import dataset_module
+from walkdiff.errors import WalkdiffError
+from walkdiff.motion.mirror import mirror as mirror_motion
+from walkdiff.motion.representation import encode
+from walkdiff.motion.resample import resample
+from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+
+
+# Bump when encode() or the loaders change what they produce: old caches then rebuild.
+FEATURES_VERSION = 1
+
+
+@dataclass
+class ProcessedClips:
+    names: list[str]
+    features: list[np.ndarray]  # per clip (F, D) float32, at the configured rate
+    mirrored: list[np.ndarray] | None  # the same clips mirrored left/right, when asked for
+    skeleton: Skeleton
+    cache_file: Path
+    from_cache: bool
+
+
+def cache_key(dataset: str, clips: list[ClipInfo], settings: dict) -> str:
+    digest = hashlib.sha256()
+    digest.update(json.dumps({"dataset": dataset, "version": FEATURES_VERSION, **settings}).encode())
+    file_hashes: dict[Path, str] = {}
+    for clip in clips:
+        if clip.path not in file_hashes:
+            file_hashes[clip.path] = hashlib.sha256(clip.path.read_bytes()).hexdigest()
+        digest.update(f"{clip.name}|{clip.item}|{file_hashes[clip.path]}\n".encode())
+    return digest.hexdigest()[:20]
+
+
+def _process_clip(dataset: str, clip: ClipInfo, fps: float, mirror: bool):
+    """Runs in a worker process: returns (features, mirrored features, skeleton dict) or an error text."""
+    import torch
+
+    torch.set_num_threads(1)
+    module = dataset_module(dataset)
+    try:
+        motion = resample(module.load(clip), fps)
+        features = encode(motion, module.CONTACTS)
+        mirrored = encode(mirror_motion(motion), module.CONTACTS) if mirror else None
+    except WalkdiffError as error:
+        return None, None, None, str(error)
+    return features, mirrored, skeleton_to_dict(motion.skeleton), None
+
+
+def preprocess(
+    dataset: str,
+    clips: list[ClipInfo],
+    *,
+    fps: float,
+    mirror: bool,
+    cache_dir: Path,
+    on_error: str = "fail",
+    workers: int = 2,
+    progress: bool = True,
+) -> ProcessedClips:
+    if on_error not in ("fail", "skip"):
+        raise WalkdiffError(f"data.on_error: expected 'fail' or 'skip', got {on_error!r}")
+    settings = {"fps": fps, "mirror": mirror, "on_error": on_error}
+    cache_file = Path(cache_dir) / f"{dataset}-{cache_key(dataset, clips, settings)}.npz"
+    if cache_file.exists():
+        return _load(cache_file, mirror)
+
+    results = _run(dataset, clips, fps, mirror, workers, progress)
+    failed = [(clip, err) for clip, (*_, err) in zip(clips, results) if err is not None]
+    if failed:
+        listing = "\n  ".join(err for _, err in failed)
+        if on_error == "fail":
+            raise WalkdiffError(
+                f"{len(failed)} clip(s) could not be read (set data.on_error=skip to leave them out):\n  {listing}"
+            )
+        warnings.warn(f"skipping {len(failed)} unreadable clip(s):\n  {listing}", stacklevel=2)
+    kept = [(clip, r) for clip, r in zip(clips, results) if r[3] is None]
+    if not kept:
+        raise WalkdiffError("no clip could be read", path=clips[0].path.parent if clips else None)
+    skeleton = kept[0][1][2]
+    for clip, r in kept:
+        if r[2]["names"] != skeleton["names"] or r[2]["parents"] != skeleton["parents"]:
+            raise WalkdiffError(
+                f"skeleton differs from {kept[0][0].name}'s; all clips of a dataset must share one hierarchy",
+                path=clip.path,
+            )
+    _save(cache_file, kept, skeleton, mirror)
+    return _load(cache_file, mirror, from_cache=False)
+
+
+def _run(dataset: str, clips: list[ClipInfo], fps: float, mirror: bool, workers: int, progress: bool) -> list:
+    bar = tqdm(total=len(clips), desc=f"preprocessing {dataset}", unit="clip", disable=not progress)
+    args = [(dataset, clip, fps, mirror) for clip in clips]
+    if workers <= 1:
+        results = []
+        for a in args:
+            results.append(_process_clip(*a))
+            bar.update()
+    else:
+        # spawn, not fork: forking a process that already runs torch threads can deadlock.
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            futures = [pool.submit(_process_clip, *a) for a in args]
+            results = []
+            for future in futures:
+                results.append(future.result())
+                bar.update()
+    bar.close()
+    return results
+
+
+def _save(cache_file: Path, kept: list, skeleton: dict, mirror: bool) -> None:
+    cache_file.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {
+        "names": np.array([clip.name for clip, _ in kept]),
+        "lengths": np.array([r[0].shape[0] for _, r in kept]),
+        "features": np.concatenate([r[0] for _, r in kept]),
+        "skeleton": np.array(json.dumps(skeleton)),
+    }
+    if mirror:
+        arrays["mirrored"] = np.concatenate([r[1] for _, r in kept])
+    fd, tmp = tempfile.mkstemp(dir=cache_file.parent, suffix=".tmp.npz")
+    os.close(fd)
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, cache_file)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def _load(cache_file: Path, mirror: bool, from_cache: bool = True) -> ProcessedClips:
+    with np.load(cache_file) as data:
+        bounds = np.cumsum(data["lengths"])[:-1]
+        features = np.split(data["features"], bounds)
+        mirrored = np.split(data["mirrored"], bounds) if mirror else None
+        return ProcessedClips(
+            names=data["names"].tolist(),
+            features=features,
+            mirrored=mirrored,
+            skeleton=skeleton_from_dict(json.loads(str(data["skeleton"]))),
+            cache_file=cache_file,
+            from_cache=from_cache,
+        )

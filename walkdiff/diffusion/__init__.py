@@ -1,0 +1,31 @@
+"""Motion-agnostic diffusion: noise schedules, the Gaussian forward process, DDPM/DDIM samplers, guidance."""
+
+from walkdiff.diffusion.gaussian import PREDICTIONS, GaussianDiffusion, extract
+from walkdiff.diffusion.samplers import (
+    SamplerSteps,
+    ddim_sample,
+    ddpm_sample,
+    guided,
+    guided_batched,
+    respace,
+    run_steps,
+    step_coefficients,
+)
+from walkdiff.diffusion.schedules import SCHEDULES, beta_schedule, cosine_alphas_cumprod
+
+__all__ = [
+    "PREDICTIONS",
+    "SCHEDULES",
+    "GaussianDiffusion",
+    "SamplerSteps",
+    "beta_schedule",
+    "cosine_alphas_cumprod",
+    "ddim_sample",
+    "ddpm_sample",
+    "extract",
+    "guided",
+    "guided_batched",
+    "respace",
+    "run_steps",
+    "step_coefficients",
+]

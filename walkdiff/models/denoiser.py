@@ -1,0 +1,89 @@
+"""The sequence denoiser: a transformer over the frames of a window, conditioned on step, content and style."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+
+def sinusoidal(positions: torch.Tensor, dim: int) -> torch.Tensor:
+    """Transformer-style sinusoidal embedding of (fractional) positions or diffusion steps."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(10000.0) * torch.arange(half, device=positions.device) / half)
+    angles = positions.float()[..., None] * freqs
+    return torch.cat([angles.sin(), angles.cos()], dim=-1)
+
+
+class LabelEmbedding(nn.Module):
+    """A learned table with one extra row, the null label used for classifier-free guidance.
+
+    Accepts class ids (B,) or mixing weights (B, classes) so that styles can be blended.
+    """
+
+    def __init__(self, num_classes: int, dim: int):
+        super().__init__()
+        self.num_classes = num_classes
+        self.table = nn.Embedding(num_classes + 1, dim)
+
+    @property
+    def null_id(self) -> int:
+        return self.num_classes
+
+    def forward(self, labels: torch.Tensor) -> torch.Tensor:
+        if labels.is_floating_point():
+            return labels @ self.table.weight[: self.num_classes]
+        return self.table(labels)
+
+    def drop(self, labels: torch.Tensor, p: float, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Replace each id by the null id with probability p (training for guidance)."""
+        if p <= 0:
+            return labels
+        drop = torch.rand(labels.shape, device=labels.device, generator=generator) < p
+        return torch.where(drop, torch.full_like(labels, self.null_id), labels)
+
+
+class MotionDenoiser(nn.Module):
+    """Predicts the diffusion target (eps, x0 or v) for a noisy window x_t of shape (B, F, D).
+
+    The conditioning (step + content + style) is both a prefix token that every frame attends to
+    and a bias added to every frame, which makes the style signal hard to ignore.
+    """
+
+    def __init__(
+        self,
+        feature_dim: int,
+        num_styles: int,
+        num_contents: int,
+        d_model: int = 256,
+        layers: int = 4,
+        heads: int = 4,
+        ff_mult: int = 4,
+        dropout: float = 0.1,
+    ):
+        super().__init__()
+        self.d_model = d_model
+        self.input = nn.Linear(feature_dim, d_model)
+        self.step_mlp = nn.Sequential(nn.Linear(d_model, d_model), nn.SiLU(), nn.Linear(d_model, d_model))
+        self.style = LabelEmbedding(num_styles, d_model)
+        self.content = LabelEmbedding(num_contents, d_model)
+        layer = nn.TransformerEncoderLayer(
+            d_model, heads, ff_mult * d_model, dropout, activation="gelu", batch_first=True, norm_first=True
+        )
+        self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(d_model)
+        self.output = nn.Linear(d_model, feature_dim)
+
+    def condition(self, t: torch.Tensor, style: torch.Tensor, content: torch.Tensor) -> torch.Tensor:
+        return self.step_mlp(sinusoidal(t, self.d_model)) + self.style(style) + self.content(content)
+
+    def forward(
+        self, x_t: torch.Tensor, t: torch.Tensor, style: torch.Tensor, content: torch.Tensor
+    ) -> torch.Tensor:
+        frames = x_t.shape[1]
+        cond = self.condition(t, style, content)[:, None]
+        pos = sinusoidal(torch.arange(frames, device=x_t.device), self.d_model)
+        h = self.input(x_t) + pos + cond
+        h = self.encoder(torch.cat([cond, h], dim=1))[:, 1:]
+        return self.output(self.norm(h))

@@ -1,0 +1,300 @@
+"""The styled walking GAN-DDPM (Findlay et al., MIG 2023) as a LightningModule with manual optimization.
+
+Loss of the generator (the denoiser), per batch:
+    L = ||target - net(x_t, t, c, s)||^2
+        + lambda_contact * w_t * ||contacts(x0_hat) - contacts(x0)||^2
+        + lambda_root    * w_t * ||root(x0_hat) - root(x0)||^2      (root integrated from predicted velocities)
+        + lambda_adv     * w_t * 1/2 (D(x0_hat) - 1)^2                (LSGAN)
+The discriminator sees real x0 against detached x0_hat: 1/2 (D(x0) - 1)^2 + 1/2 w_t D(x0_hat)^2.
+
+Why w_t = alpha_bar_t: with eps-prediction, x0_hat = (x_t - sqrt(1 - abar) eps_hat) / sqrt(abar), so an
+error e in eps becomes an error sqrt((1 - abar) / abar) e in x0_hat: at t near T (abar ~ 2e-7 for the
+cosine schedule at T = 100) that is ~2000 e. Multiplying the squared x0-space terms by abar_t caps them at
+(1 - abar_t) e^2, no larger than the eps loss itself, while keeping them at full weight for small t,
+where x0_hat is a meaningful motion. It is smooth (no threshold to tune) and needs no extra head.
+
+Step counting: with the adversarial term on, each batch takes two optimizer steps (D then G), and
+Lightning's `trainer.global_step` counts both; `max_steps` therefore counts 2 per batch. The configs
+bound training by epochs and time instead, and warm-up counts batches (`self.batches_done`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict
+
+import lightning as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+from walkdiff.data.datamodule import DataSpec
+from walkdiff.diffusion import GaussianDiffusion, ddim_sample, ddpm_sample, guided_batched
+from walkdiff.errors import WalkdiffError
+from walkdiff.models.denoiser import MotionDenoiser
+from walkdiff.models.discriminator import MotionDiscriminator
+from walkdiff.motion.representation import FeatureLayout, Normalizer, decode_root
+from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss term became NaN or infinite; the message names the batch and the term."""
+
+
+class StyledMotionDiffusion(L.LightningModule):
+    def __init__(
+        self,
+        data_spec: DataSpec | dict | None = None,
+        d_model: int = 256,
+        layers: int = 4,
+        heads: int = 4,
+        dropout: float = 0.1,
+        timesteps: int = 100,
+        schedule: str = "cosine",
+        beta_start: float = 1e-4,
+        beta_end: float = 0.02,
+        prediction: str = "eps",
+        lambda_contact: float = 1.0,
+        lambda_root: float = 1.0,
+        lambda_adv: float = 0.05,
+        adv_warmup_batches: int = 500,
+        cond_drop: float = 0.1,
+        conditional_discriminator: bool = True,
+        lr: float = 2e-4,
+        lr_discriminator: float = 2e-4,
+        weight_decay: float = 0.0,
+        lr_warmup_batches: int = 100,
+        grad_clip: float = 1.0,
+        ema_decay: float = 0.999,
+    ):
+        super().__init__()
+        if data_spec is None:
+            raise WalkdiffError("model.data_spec is missing: it is linked from the data module by `walkdiff fit`")
+        spec = data_spec if isinstance(data_spec, dict) else asdict(data_spec)
+        self.save_hyperparameters(ignore=["data_spec"])
+        self.hparams["data_spec"] = spec
+        self.spec = spec
+        self.automatic_optimization = False
+
+        self.layout = FeatureLayout(spec["num_joints"])
+        self.normalizer = Normalizer(spec["feature_dim"])
+        self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
+        num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
+        self.denoiser = MotionDenoiser(spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout)
+        self.discriminator = (
+            MotionDiscriminator(spec["feature_dim"], num_styles, num_contents, conditional=conditional_discriminator)
+            if lambda_adv > 0
+            else None
+        )
+        self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True)
+        self.ema.requires_grad_(False)
+        self.skeleton: Skeleton | None = None
+
+    # ---------------------------------------------------------------- data plumbing
+
+    def setup(self, stage: str) -> None:
+        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if datamodule is None:
+            return
+        datamodule.setup(stage)
+        if stage == "fit":  # a resumed run then loads the same statistics back from its checkpoint
+            self.normalizer.load_state_dict(datamodule.normalizer.state_dict())
+        if self.skeleton is None:
+            self.skeleton = datamodule.skeleton
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.skeleton is not None:
+            checkpoint["skeleton"] = skeleton_to_dict(self.skeleton)
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        if "skeleton" in checkpoint:
+            self.skeleton = skeleton_from_dict(checkpoint["skeleton"])
+
+    @property
+    def optimizers_per_batch(self) -> int:
+        return 2 if self.discriminator is not None else 1
+
+    @property
+    def batches_done(self) -> int:
+        return self.global_step // self.optimizers_per_batch
+
+    # ---------------------------------------------------------------- losses
+
+    def _noisy(self, x0: torch.Tensor, generator: torch.Generator | None = None):
+        t = torch.randint(0, self.diffusion.num_timesteps, (x0.shape[0],), device=x0.device, generator=generator)
+        noise = torch.randn(x0.shape, device=x0.device, generator=generator)
+        return t, noise, self.diffusion.q_sample(x0, t, noise)
+
+    def _geometry(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Contact labels and integrated root positions of normalised features, in data units."""
+        raw = self.normalizer.denormalize(x)
+        return raw[..., self.layout.contacts], decode_root(raw)
+
+    def generator_losses(self, batch: dict, x0_hat: torch.Tensor, out, target, t) -> dict[str, torch.Tensor]:
+        x0 = batch["features"]
+        weight = self.diffusion.alphas_cumprod[t]  # (B,), see the module docstring
+        contact_hat, root_hat = self._geometry(x0_hat)
+        contact, root = self._geometry(x0)
+        losses = {
+            "eps": F.mse_loss(out, target),
+            "contact": (weight * (contact_hat - contact).pow(2).mean(dim=(1, 2))).mean(),
+            "root": (weight * (root_hat - root).pow(2).mean(dim=(1, 2))).mean(),
+        }
+        if self.discriminator is not None and self.batches_done >= self.hparams.adv_warmup_batches:
+            fake = self.discriminator(x0_hat, batch["style"], batch["content"])
+            losses["adv"] = (weight * 0.5 * (fake - 1).pow(2)).mean()
+        return losses
+
+    def discriminator_loss(self, batch: dict, x0_hat: torch.Tensor, t: torch.Tensor) -> dict[str, torch.Tensor]:
+        weight = self.diffusion.alphas_cumprod[t]
+        real = self.discriminator(batch["features"], batch["style"], batch["content"])
+        fake = self.discriminator(x0_hat.detach(), batch["style"], batch["content"])
+        loss = 0.5 * (real - 1).pow(2).mean() + (weight * 0.5 * fake.pow(2)).mean()
+        return {"d": loss, "d_real": real.mean().detach(), "d_fake": fake.mean().detach()}
+
+    def _check_finite(self, losses: dict[str, torch.Tensor]) -> None:
+        for name, value in losses.items():
+            if not torch.isfinite(value):
+                raise TrainingDiverged(
+                    f"loss term {name!r} is {value.item()} at batch {self.batches_done} "
+                    f"(epoch {self.current_epoch}, global step {self.global_step}); lower the learning rate "
+                    "or lambda_" + name
+                )
+
+    # ---------------------------------------------------------------- training
+
+    def training_step(self, batch: dict, batch_idx: int) -> None:
+        h = self.hparams
+        optimizers = self.optimizers()
+        schedulers = self.lr_schedulers()
+        opt_g, opt_d = (optimizers, None) if self.discriminator is None else optimizers
+        sched_g, sched_d = (schedulers, None) if self.discriminator is None else schedulers
+
+        x0 = batch["features"]
+        t, noise, x_t = self._noisy(x0)
+        style = self.denoiser.style.drop(batch["style"], h.cond_drop)
+        content = self.denoiser.content.drop(batch["content"], h.cond_drop)
+        out = self.denoiser(x_t, t, style, content)
+        target = self.diffusion.training_target(x0, noise, t)
+        x0_hat = self.diffusion.predict_x0(out, x_t, t)
+
+        logs: dict[str, torch.Tensor] = {}
+        if self.discriminator is not None:
+            d_losses = self.discriminator_loss(batch, x0_hat, t)
+            self._check_finite({"d": d_losses["d"]})
+            opt_d.zero_grad(set_to_none=True)
+            self.manual_backward(d_losses["d"])
+            self.clip_gradients(opt_d, gradient_clip_val=h.grad_clip, gradient_clip_algorithm="norm")
+            opt_d.step()
+            sched_d.step()
+            logs |= {f"train/loss_{k}" if k == "d" else f"train/{k}": v for k, v in d_losses.items()}
+
+        losses = self.generator_losses(batch, x0_hat, out, target, t)
+        self._check_finite(losses)
+        lambdas = {"eps": 1.0, "contact": h.lambda_contact, "root": h.lambda_root, "adv": h.lambda_adv}
+        total = sum(lambdas[k] * v for k, v in losses.items())
+        opt_g.zero_grad(set_to_none=True)
+        self.manual_backward(total)
+        self.clip_gradients(opt_g, gradient_clip_val=h.grad_clip, gradient_clip_algorithm="norm")
+        opt_g.step()
+        sched_g.step()
+        self.ema.update_parameters(self.denoiser)
+
+        logs |= {f"train/loss_{k}": v.detach() for k, v in losses.items()}
+        logs["train/loss"] = total.detach()
+        logs["train/lr"] = torch.tensor(sched_g.get_last_lr()[0])
+        self.log_dict(logs, prog_bar=False, on_step=True, on_epoch=True, sync_dist=True, batch_size=x0.shape[0])
+        self.log("loss", total.detach(), prog_bar=True, on_step=True, on_epoch=False, logger=False)
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        # Fixed noise per batch, so validation losses are comparable across epochs.
+        generator = torch.Generator(device=self.device).manual_seed(1000 + batch_idx)
+        x0 = batch["features"]
+        t, noise, x_t = self._noisy(x0, generator)
+        out = self.ema.module(x_t, t, batch["style"], batch["content"])
+        target = self.diffusion.training_target(x0, noise, t)
+        x0_hat = self.diffusion.predict_x0(out, x_t, t)
+        losses = self.generator_losses(batch, x0_hat, out, target, t)
+        losses.pop("adv", None)
+        self.log_dict(
+            {f"val/loss_{k}": v for k, v in losses.items()} | {"val/loss": losses["eps"]},
+            on_epoch=True,
+            sync_dist=True,
+            batch_size=x0.shape[0],
+        )
+
+    def configure_optimizers(self):
+        h = self.hparams
+        total = self.trainer.estimated_stepping_batches if self._trainer is not None else math.inf
+
+        def warmup_cosine(batch: int) -> float:
+            if batch < h.lr_warmup_batches:
+                return (batch + 1) / h.lr_warmup_batches
+            if not math.isfinite(total) or total <= h.lr_warmup_batches:
+                return 1.0
+            progress = min(1.0, (batch - h.lr_warmup_batches) / (total - h.lr_warmup_batches))
+            return 0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * progress))
+
+        opt_g = torch.optim.AdamW(self.denoiser.parameters(), lr=h.lr, weight_decay=h.weight_decay)
+        sched_g = torch.optim.lr_scheduler.LambdaLR(opt_g, warmup_cosine)
+        if self.discriminator is None:
+            return [opt_g], [sched_g]
+        opt_d = torch.optim.AdamW(self.discriminator.parameters(), lr=h.lr_discriminator, betas=(0.5, 0.999))
+        sched_d = torch.optim.lr_scheduler.LambdaLR(opt_d, warmup_cosine)
+        return [opt_g, opt_d], [sched_g, sched_d]
+
+    # ---------------------------------------------------------------- generation
+
+    def label_ids(self, names: list[str], kind: str) -> torch.Tensor:
+        vocabulary = list(self.spec["styles" if kind == "style" else "contents"])
+        unknown = [n for n in names if n not in vocabulary]
+        if unknown:
+            raise WalkdiffError(f"unknown {kind} {', '.join(unknown)}; valid: {', '.join(vocabulary)}")
+        return torch.tensor([vocabulary.index(n) for n in names], device=self.device)
+
+    @torch.no_grad()
+    def generate(
+        self,
+        style: torch.Tensor,
+        content: torch.Tensor,
+        frames: int | None = None,
+        *,
+        sampler: str = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        guidance: float = 1.0,
+        generator: torch.Generator | None = None,
+        inpaint: tuple[torch.Tensor, torch.Tensor] | None = None,
+        progress: bool = False,
+    ) -> torch.Tensor:
+        """Normalised feature windows (B, frames, D) from the EMA denoiser.
+
+        `style` holds ids (B,) or mixing weights (B, styles); `guidance` W = 1 is plain conditional
+        sampling, W > 1 pushes towards the requested labels (classifier-free guidance).
+        """
+        net = self.ema.module.eval()
+        frames = frames or self.spec["window"]
+        shape = (style.shape[0], frames, self.spec["feature_dim"])
+        if guidance == 1.0:
+
+            def model_fn(x, t):
+                return net(x, t, style, content)
+        else:
+            null_style = torch.full((style.shape[0],), net.style.null_id, device=self.device)
+            if style.is_floating_point():
+                null_style = F.one_hot(null_style, net.style.num_classes + 1)[:, :-1].float() * 0
+            null_content = torch.full_like(content, net.content.null_id)
+            pair_style = torch.cat([style, null_style])
+            pair_content = torch.cat([content, null_content])
+            model_fn = guided_batched(lambda x, t: net(x, t, pair_style, pair_content), guidance)
+        common = dict(generator=generator, progress=progress, inpaint=inpaint)
+        if sampler == "ddpm":
+            return ddpm_sample(model_fn, self.diffusion, shape, **common)
+        if sampler == "ddim":
+            return ddim_sample(model_fn, self.diffusion, shape, steps or 10, eta, **common)
+        raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm or ddim")
+
+    def to_raw(self, x: torch.Tensor) -> np.ndarray:
+        """Normalised features -> features in data units (numpy), ready for representation.decode."""
+        return self.normalizer.denormalize(x).float().cpu().numpy()

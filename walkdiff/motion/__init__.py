@@ -1,0 +1,1 @@
+"""Motion geometry and files (BVH, skeleton, rotations, features); no Lightning here."""

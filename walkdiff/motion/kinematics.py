@@ -1,0 +1,67 @@
+"""Forward kinematics: local joint rotations and translations -> world positions (and rotations).
+
+Pure torch, batched over any leading dimensions and differentiable, so that models can put losses on
+joint positions. The joint loop relies on walkdiff's ordering convention (a parent precedes its
+children), which makes one pass over the joints enough.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from walkdiff.motion.skeleton import Motion
+
+
+def forward_kinematics(
+    rotations: torch.Tensor,
+    positions: torch.Tensor,
+    parents: Sequence[int] | np.ndarray | torch.Tensor,
+    return_rotations: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+    """World joint positions (..., J, 3) from local rotations (..., J, 3, 3) and translations (..., J, 3).
+
+    `positions[..., j, :]` is joint j's translation in its parent's frame (for the root: its world
+    position). Leading dimensions of `rotations` and `positions` broadcast against each other, so a
+    (J, 3) offset table can drive a (B, F, J, 3, 3) batch of rotations. With `return_rotations` the
+    world rotations (..., J, 3, 3) come back too.
+    """
+    parents = [int(p) for p in parents]
+    num_joints = len(parents)
+    if rotations.shape[-3:] != (num_joints, 3, 3) or positions.shape[-2:] != (num_joints, 3):
+        raise ValueError(
+            f"expected rotations (..., {num_joints}, 3, 3) and positions (..., {num_joints}, 3), "
+            f"got {tuple(rotations.shape)} and {tuple(positions.shape)}"
+        )
+    world_rot: list[torch.Tensor] = []
+    world_pos: list[torch.Tensor] = []
+    for joint, parent in enumerate(parents):
+        local_rot = rotations[..., joint, :, :]
+        local_pos = positions[..., joint, :]
+        if parent < 0:
+            world_rot.append(local_rot)
+            world_pos.append(local_pos)
+            continue
+        if parent >= joint:
+            raise ValueError(f"joint {joint} has parent {parent}: parents must precede their children")
+        parent_rot = world_rot[parent]
+        world_rot.append(parent_rot @ local_rot)
+        world_pos.append((parent_rot @ local_pos.unsqueeze(-1)).squeeze(-1) + world_pos[parent])
+    # Leading dimensions may differ between joints (the root's translation is per frame, an offset
+    # table is not), so broadcast before stacking.
+    shape = torch.broadcast_shapes(rotations.shape[:-3], positions.shape[:-2])
+    positions_out = torch.stack([p.expand(*shape, 3) for p in world_pos], dim=-2)
+    if not return_rotations:
+        return positions_out
+    return positions_out, torch.stack([r.expand(*shape, 3, 3) for r in world_rot], dim=-3)
+
+
+def motion_world_positions(motion: Motion) -> np.ndarray:
+    """(F, J, 3) float64 world joint positions of a clip."""
+    # torch.tensor copies: Motion arrays may be read-only views, which torch.from_numpy warns about.
+    positions = forward_kinematics(
+        torch.tensor(motion.rotations), torch.tensor(motion.positions), motion.skeleton.parents
+    )
+    return positions.numpy()

@@ -1,0 +1,283 @@
+"""Motion <-> per-frame feature vectors, and the per-channel normaliser that models train on.
+
+One frame is D = 4 + 6J + 4 numbers (Y is up, the ground is the XZ plane):
+
+    root_vel     (2)   root displacement to the next frame, x and z in the heading frame of this frame
+    root_height  (1)   root y
+    heading_vel  (1)   heading change to the next frame, wrapped to (-pi, pi]
+    rotations    (6J)  6D local rotation of every joint (first two matrix columns); the root's is taken
+                       relative to its heading, so the features do not depend on where the clip faces
+    contacts     (4)   left heel, left toe, right heel, right toe in {0, 1}
+
+The heading is the yaw of the root: its forward axis (a local axis, +Z for the CMU skeleton of Xia)
+turned into the world and projected on the ground. Velocities are forward differences, so the last
+frame has no next frame: it repeats the previous frame's values (zeros for a one-frame clip), and
+decoding never reads them. Features are computed in float64 and returned as float32.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import roma
+import torch
+from torch import nn
+
+from walkdiff.motion.kinematics import forward_kinematics, motion_world_positions
+from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
+from walkdiff.motion.skeleton import Motion, Skeleton
+
+CMU_FORWARD = (0.0, 0.0, 1.0)  # the CMU rest pose faces +Z (its toes point that way)
+
+
+@dataclass(frozen=True)
+class FeatureLayout:
+    """Where each block of a feature vector lies, from the joint count alone."""
+
+    num_joints: int
+
+    root_vel = slice(0, 2)
+    root_height = slice(2, 3)
+    heading_vel = slice(3, 4)
+
+    @property
+    def rotations(self) -> slice:
+        return slice(4, 4 + 6 * self.num_joints)
+
+    @property
+    def contacts(self) -> slice:
+        return slice(4 + 6 * self.num_joints, 8 + 6 * self.num_joints)
+
+    @property
+    def dim(self) -> int:
+        return 8 + 6 * self.num_joints
+
+    @classmethod
+    def from_dim(cls, dim: int) -> FeatureLayout:
+        if dim < 14 or (dim - 8) % 6:
+            raise ValueError(f"a feature dimension is 8 + 6 * joints, got {dim}")
+        return cls((dim - 8) // 6)
+
+
+@dataclass(frozen=True)
+class ContactSpec:
+    """Which joints touch the ground and when a joint counts as touching it.
+
+    A joint is in contact when it moves slower than `speed_threshold` (units/s) and is lower than
+    `height_threshold` (units) above its own floor, the `floor_percentile`-th percentile of its height
+    over the clip. A per-joint floor copes with clips whose floor is offset, and with skeletons whose
+    left and right feet do not reach the same height (Xia's right toe sits ~0.2 units below the left).
+    """
+
+    left_heel: str
+    left_toe: str
+    right_heel: str
+    right_toe: str
+    speed_threshold: float
+    height_threshold: float
+    floor_percentile: float = 5.0
+
+    @property
+    def joints(self) -> tuple[str, str, str, str]:
+        return (self.left_heel, self.left_toe, self.right_heel, self.right_toe)
+
+
+# Xia (CMU units, a leg is ~14 units, so 1 unit is ~6 cm). Foot speeds measured over 72 clips at
+# 120 fps: toes either rest (< 2 units/s) or swing (20-60 units/s) with a trough at 4-6 units/s, so 5
+# units/s. Slow toes lie within 0.3 units of their floor; slow heels mostly within 0.45, the rest are
+# heels lifted and turning about the planted toe, which 0.5 units excludes.
+XIA_CONTACTS = ContactSpec(
+    "LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase", speed_threshold=5.0, height_threshold=0.5
+)
+
+
+def yaw_matrix(heading: torch.Tensor) -> torch.Tensor:
+    """(...,) angles -> (..., 3, 3) rotations about +Y; yaw_matrix(h) turns +Z to (sin h, 0, cos h)."""
+    return roma.rotvec_to_rotmat(heading.unsqueeze(-1) * heading.new_tensor([0.0, 1.0, 0.0]))
+
+
+def root_heading(root_rotations: torch.Tensor, forward: Sequence[float] = CMU_FORWARD) -> torch.Tensor:
+    """(..., 3, 3) root world rotations -> (...,) heading angles (yaw of the forward axis)."""
+    direction = root_rotations @ root_rotations.new_tensor(forward)
+    return torch.atan2(direction[..., 0], direction[..., 2])
+
+
+def start_pose(motion: Motion, forward: Sequence[float] = CMU_FORWARD) -> tuple[np.ndarray, float]:
+    """Root (x, z) and heading at frame 0: pass them to `decode` to put a decoded clip back in place."""
+    heading = root_heading(torch.tensor(motion.rotations[0, 0]), forward)
+    return motion.root_positions[0, [0, 2]].copy(), float(heading)
+
+
+def _wrap(angle: torch.Tensor) -> torch.Tensor:
+    """Angles to (-pi, pi]."""
+    return torch.pi - torch.remainder(torch.pi - angle, 2 * torch.pi)
+
+
+def _per_step(values: torch.Tensor) -> torch.Tensor:
+    """Values of frames 0..F-2 (one per step to the next frame) -> F frames, the last repeating the one before."""
+    if values.shape[0] == 0:
+        return torch.zeros(1, *values.shape[1:], dtype=values.dtype)
+    return torch.cat([values, values[-1:]])
+
+
+def foot_contacts(motion: Motion, spec: ContactSpec, world_positions: np.ndarray | None = None) -> np.ndarray:
+    """(F, 4) float {0, 1}: left heel, left toe, right heel, right toe (see `ContactSpec`)."""
+    if world_positions is None:
+        world_positions = motion_world_positions(motion)
+    feet = torch.from_numpy(world_positions[:, [motion.skeleton.index(name) for name in spec.joints]])
+    speed = _per_step(torch.linalg.norm(feet[1:] - feet[:-1], dim=-1)) * motion.fps
+    height = feet[..., 1] - torch.quantile(feet[..., 1], spec.floor_percentile / 100, dim=0)
+    return ((speed < spec.speed_threshold) & (height < spec.height_threshold)).double().numpy()
+
+
+def encode(motion: Motion, spec: ContactSpec, forward: Sequence[float] = CMU_FORWARD) -> np.ndarray:
+    """(F, 8 + 6J) float32 features of a clip; `forward` is the root's local forward axis."""
+    rotations = torch.tensor(motion.rotations)
+    root = torch.tensor(motion.root_positions)
+    heading = root_heading(rotations[:, 0], forward)
+    to_heading = yaw_matrix(heading).transpose(-1, -2)
+
+    local = rotations.clone()
+    local[:, 0] = to_heading @ rotations[:, 0]
+    step = _per_step((to_heading[:-1] @ (root[1:] - root[:-1]).unsqueeze(-1)).squeeze(-1))
+    heading_vel = _per_step(_wrap(heading[1:] - heading[:-1]))
+    contacts = torch.from_numpy(foot_contacts(motion, spec))
+
+    features = torch.cat(
+        [
+            step[:, [0, 2]],
+            root[:, 1:2],
+            heading_vel[:, None],
+            matrix_to_6d(local).reshape(motion.num_frames, -1),
+            contacts,
+        ],
+        dim=-1,
+    )
+    return features.numpy().astype(np.float32)
+
+
+def _integrate_root(
+    features: torch.Tensor, start_position: Sequence[float] | torch.Tensor | None, start_heading
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Headings (..., F) and root positions (..., F, 3) by summing the per-frame changes."""
+    layout = FeatureLayout.from_dim(features.shape[-1])
+    zero = torch.zeros_like(features[..., :1, 0])
+    start_heading = torch.as_tensor(start_heading, dtype=features.dtype, device=features.device)
+    turns = torch.cumsum(features[..., :-1, layout.heading_vel.start], dim=-1)
+    heading = start_heading.unsqueeze(-1) + torch.cat([zero, turns], dim=-1)
+
+    vel = features[..., layout.root_vel]
+    local_step = torch.stack([vel[..., 0], torch.zeros_like(vel[..., 0]), vel[..., 1]], dim=-1)
+    world_step = (yaw_matrix(heading) @ local_step.unsqueeze(-1)).squeeze(-1)
+    travelled = torch.cumsum(world_step[..., :-1, :], dim=-2)
+    xz = torch.cat([torch.zeros_like(travelled[..., :1, :]), travelled], dim=-2)[..., [0, 2]]
+    if start_position is not None:
+        xz = xz + torch.as_tensor(start_position, dtype=features.dtype, device=features.device).unsqueeze(-2)
+    height = features[..., layout.root_height]
+    return heading, torch.stack([xz[..., 0], height[..., 0], xz[..., 1]], dim=-1)
+
+
+def decode_root(
+    features: torch.Tensor,
+    start_position: Sequence[float] | torch.Tensor | None = None,
+    start_heading: float | torch.Tensor = 0.0,
+) -> torch.Tensor:
+    """Root world positions (..., F, 3) from features (..., F, D); differentiable.
+
+    The root starts at `start_position` (x, z), by default the origin, facing `start_heading`.
+    """
+    return _integrate_root(features, start_position, start_heading)[1]
+
+
+def _local_rotations(features: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+    """(..., F, J, 3, 3) local rotations with the root put back on its heading."""
+    layout = FeatureLayout.from_dim(features.shape[-1])
+    sixd = features[..., layout.rotations].unflatten(-1, (layout.num_joints, 6))
+    rotations = sixd_to_matrix(sixd)
+    root = yaw_matrix(heading) @ rotations[..., 0, :, :]
+    return torch.cat([root.unsqueeze(-3), rotations[..., 1:, :, :]], dim=-3)
+
+
+def features_to_positions(
+    features: torch.Tensor,
+    skeleton_offsets: torch.Tensor,
+    parents: Sequence[int] | np.ndarray,
+    start_position: Sequence[float] | torch.Tensor | None = None,
+    start_heading: float | torch.Tensor = 0.0,
+) -> torch.Tensor:
+    """World joint positions (..., F, J, 3) from features (..., F, D) and bone offsets (J, 3); differentiable."""
+    heading, root = _integrate_root(features, start_position, start_heading)
+    rotations = _local_rotations(features, heading)
+    offsets = skeleton_offsets.to(features.dtype).expand(*root.shape[:-1], -1, 3)
+    positions = torch.cat([root.unsqueeze(-2), offsets[..., 1:, :]], dim=-2)
+    return forward_kinematics(rotations, positions, parents)
+
+
+def decode(
+    features: np.ndarray,
+    skeleton: Skeleton,
+    frame_time: float,
+    start_position: Sequence[float] | None = None,
+    start_heading: float = 0.0,
+) -> Motion:
+    """A clip on `skeleton` from (F, D) features (contacts are not used).
+
+    Joints other than the root get their bone offsets: translation channels of non-root joints are
+    not part of the features.
+    """
+    x = torch.tensor(np.asarray(features), dtype=torch.float64)
+    if x.ndim != 2 or x.shape[1] != FeatureLayout(skeleton.num_joints).dim:
+        raise ValueError(
+            f"expected features (frames, {FeatureLayout(skeleton.num_joints).dim}) for "
+            f"{skeleton.num_joints} joints, got {tuple(x.shape)}"
+        )
+    heading, root = _integrate_root(x, start_position, start_heading)
+    positions = np.repeat(skeleton.offsets[None], x.shape[0], axis=0)
+    positions[:, 0] = root.numpy()
+    return Motion(skeleton, _local_rotations(x, heading).numpy(), positions, frame_time)
+
+
+class Normalizer(nn.Module):
+    """Per-channel standardisation with statistics of the training split, saved with the model.
+
+    Every channel is standardised, contacts included: the diffusion noise is N(0, I) on every channel,
+    so all channels should share its scale, and losses on contacts are taken after `denormalize`.
+    A channel whose std is below `eps` (e.g. a joint that never rotates) is only centred: dividing by
+    a tiny std would blow a model's small errors up on the way back.
+    """
+
+    mean: torch.Tensor
+    std: torch.Tensor
+
+    def __init__(self, dim: int):
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(dim))
+        self.register_buffer("std", torch.ones(dim))
+
+    @classmethod
+    def fit(cls, features: np.ndarray | Sequence[np.ndarray], eps: float = 1e-4) -> Normalizer:
+        """Statistics over all frames of (F, D) arrays (or one array)."""
+        if isinstance(features, np.ndarray):
+            frames = features.reshape(-1, features.shape[-1]).astype(np.float64)
+        else:
+            frames = np.concatenate([np.asarray(f, dtype=np.float64) for f in features], axis=0)
+        normalizer = cls(frames.shape[-1])
+        std = frames.std(axis=0)
+        normalizer.mean.copy_(torch.from_numpy(frames.mean(axis=0)))
+        normalizer.std.copy_(torch.from_numpy(np.where(std < eps, 1.0, std)))
+        return normalizer
+
+    def normalize(self, x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+        if isinstance(x, torch.Tensor):
+            return (x - self.mean.to(x)) / self.std.to(x)
+        return ((x - self.mean.cpu().numpy()) / self.std.cpu().numpy()).astype(np.float32)
+
+    def denormalize(self, x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+        if isinstance(x, torch.Tensor):
+            return x * self.std.to(x) + self.mean.to(x)
+        return (x * self.std.cpu().numpy() + self.mean.cpu().numpy()).astype(np.float32)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.normalize(x)

@@ -1,0 +1,51 @@
+"""MLflow plumbing: the tracking URI, a reachability check, and logging files into the active run."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from walkdiff.errors import WalkdiffError
+
+DEFAULT_TRACKING_URI = "sqlite:///mlruns/mlflow.db"
+DEFAULT_ARTIFACT_ROOT = "mlruns/artifacts"
+
+
+def tracking_uri() -> str:
+    return os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_TRACKING_URI)
+
+
+def check_tracking_uri(uri: str) -> None:
+    """Fail at start, with the URI named, when the tracking store cannot be opened."""
+    from mlflow.tracking import MlflowClient
+
+    if uri.startswith("sqlite:///"):
+        folder = Path(uri.removeprefix("sqlite:///")).parent
+        folder.mkdir(parents=True, exist_ok=True)
+    try:
+        MlflowClient(tracking_uri=uri).search_experiments(max_results=1)
+    except Exception as error:  # mlflow raises many types (network, sqlalchemy, MlflowException)
+        raise WalkdiffError(
+            f"MLflow tracking URI {uri!r} cannot be reached ({type(error).__name__}: {error}). "
+            "Use the default sqlite:///mlruns/mlflow.db, or start the server you point at."
+        ) from None
+
+
+def log_file(logger, local_path: str | Path, artifact_dir: str | None = None) -> None:
+    """Log one file into the run of a Lightning MLFlowLogger (no-op for other loggers)."""
+    run_id = getattr(logger, "run_id", None)
+    if run_id is None or not hasattr(logger, "experiment"):
+        return
+    logger.experiment.log_artifact(run_id, str(local_path), artifact_dir)
+
+
+def log_text(logger, text: str, artifact_file: str) -> None:
+    run_id = getattr(logger, "run_id", None)
+    if run_id is None or not hasattr(logger, "experiment"):
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / Path(artifact_file).name
+        path.write_text(text)
+        folder = str(Path(artifact_file).parent)
+        logger.experiment.log_artifact(run_id, str(path), None if folder == "." else folder)
