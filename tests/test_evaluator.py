@@ -39,13 +39,19 @@ def make_xia_subset(xia_dir: Path, root: Path, walk: int = 6, run: int = 3) -> P
         walking = [f for f in files if int(f.stem.split("_")[1]) <= 12][:walk]
         running = [f for f in files if 13 <= int(f.stem.split("_")[1]) <= 15][:run]
         for f in walking + running:
-            (folder / f.name).symlink_to(f)
+            (folder / f.name).symlink_to(f.resolve())
     return root
 
 
 def tiny_datamodule(root: Path, cache_dir: Path, contents: str = "walk,run") -> MotionDataModule:
     return MotionDataModule(
-        root=str(root), contents=contents, window=16, stride=4, batch_size=16, cache_dir=str(cache_dir)
+        root=str(root),
+        contents=contents,
+        window=16,
+        stride=4,
+        batch_size=16,
+        cache_dir=str(cache_dir),
+        preprocess_workers=1,  # starting worker processes costs more than 72 clips take
     )
 
 

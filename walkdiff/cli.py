@@ -10,7 +10,7 @@ from walkdiff.errors import WalkdiffError
 LIGHTNING_VERBS = ("fit", "validate", "test")
 
 
-def lightning_cli(args: list[str]) -> None:
+def lightning_cli(args: list[str] | None) -> None:
     """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`."""
     from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
@@ -34,6 +34,11 @@ def lightning_cli(args: list[str]) -> None:
 
         def before_instantiate_classes(self) -> None:
             config = self.config[self.subcommand] if self.subcommand else self.config
+            if config.trainer.strategy == "ddp":
+                # Generator and discriminator steps alternate, so each backward leaves the other
+                # network's parameters without gradients: DDP must be told to expect that.
+                print("walkdiff: strategy ddp -> ddp_find_unused_parameters_true (GAN steps alternate)")
+                config.trainer.strategy = "ddp_find_unused_parameters_true"
             logger = config.trainer.logger
             uri = getattr(getattr(logger, "init_args", None), "tracking_uri", None)
             if uri:
@@ -105,12 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
-        if argv and argv[0] in LIGHTNING_VERBS:
-            lightning_cli(argv)
+        if words and words[0] in LIGHTNING_VERBS:
+            lightning_cli(argv)  # None: LightningCLI reads sys.argv itself
             return 0
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(words)
         if args.command is None:
             build_parser().print_help()
             return 2

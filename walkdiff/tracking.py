@@ -23,13 +23,24 @@ def check_tracking_uri(uri: str) -> None:
     if uri.startswith("sqlite:///"):
         folder = Path(uri.removeprefix("sqlite:///")).parent
         folder.mkdir(parents=True, exist_ok=True)
+    # One quick try: MLflow's default HTTP retries with backoff take minutes to give up.
+    quick = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": "10"}
+    saved = {k: os.environ.get(k) for k in quick}
+    os.environ.update(quick)
     try:
         MlflowClient(tracking_uri=uri).search_experiments(max_results=1)
     except Exception as error:  # mlflow raises many types (network, sqlalchemy, MlflowException)
+        reason = str(error).splitlines()[0][:200]
         raise WalkdiffError(
-            f"MLflow tracking URI {uri!r} cannot be reached ({type(error).__name__}: {error}). "
+            f"MLflow tracking URI {uri!r} cannot be reached ({type(error).__name__}: {reason}). "
             "Use the default sqlite:///mlruns/mlflow.db, or start the server you point at."
         ) from None
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def log_file(logger, local_path: str | Path, artifact_dir: str | None = None) -> None:

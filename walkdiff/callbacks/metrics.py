@@ -71,7 +71,7 @@ class MotionMetrics(L.Callback):
             return
         datamodule = trainer.datamodule
         evaluator = load_evaluator(self.evaluator_ckpt, pl_module.device)
-        skeleton = pl_module.skeleton or datamodule.skeleton
+        skeleton = pl_module.skeleton if pl_module.skeleton is not None else datamodule.skeleton
         self.scorer = MotionScorer(evaluator, skeleton, pl_module.spec["fps"], batch_size=self.batch_size)
         self.real = self.scorer.embed(window_set(datamodule.split_features("test"), pl_module.spec["window"]))
         self.scorer.set_reference(self.real)

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Sampler
 
 from walkdiff.data.clips import ClipInfo, ContentSelection
 from walkdiff.data.datasets import dataset_module
@@ -60,6 +61,27 @@ class WindowDataset(Dataset):
             "content": content,
             "clip": name,
         }
+
+
+class EpochShuffle(Sampler[int]):
+    """A fresh permutation per epoch, a function of (seed, epoch) only.
+
+    Lightning calls `set_epoch` before each epoch, so a resumed run sees the same order as an
+    uninterrupted one (a plain shuffling DataLoader draws from torch's global generator instead).
+    """
+
+    def __init__(self, size: int, seed: int = 0):
+        self.size, self.seed, self.epoch = size, seed, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __iter__(self):
+        generator = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
+        return iter(torch.randperm(self.size, generator=generator).tolist())
+
+    def __len__(self) -> int:
+        return self.size
 
 
 class MotionDataModule(L.LightningDataModule):
@@ -180,10 +202,12 @@ class MotionDataModule(L.LightningDataModule):
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         self.setup()
+        data = self.datasets[split]
+        seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
         return DataLoader(
-            self.datasets[split],
+            data,
             batch_size=self.hparams.batch_size,
-            shuffle=shuffle,
+            sampler=EpochShuffle(len(data), seed) if shuffle else None,
             drop_last=shuffle,
             num_workers=self.hparams.num_workers,
             persistent_workers=self.hparams.num_workers > 0,

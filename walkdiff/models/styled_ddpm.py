@@ -21,6 +21,7 @@ bound training by epochs and time instead, and warm-up counts batches (`self.bat
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import asdict
 
 import lightning as L
@@ -166,6 +167,10 @@ class StyledMotionDiffusion(L.LightningModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> None:
         h = self.hparams
+        # The noise, noise levels, label dropout and dropout of batch b depend only on (seed, b, rank),
+        # so an interrupted and resumed run draws exactly what an uninterrupted one does.
+        seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
+        torch.manual_seed(hash((seed, self.batches_done, self.global_rank)) % 2**63)
         optimizers = self.optimizers()
         schedulers = self.lr_schedulers()
         opt_g, opt_d = (optimizers, None) if self.discriminator is None else optimizers

@@ -290,6 +290,7 @@ def _motion_to_channels(motion: Motion) -> np.ndarray:
 
 
 def format_bvh(motion: Motion, precision: int = 6) -> str:
+    """BVH text of `motion`: values with `precision` decimals, each joint's channels in its own order."""
     skeleton = motion.skeleton
     shape = (motion.num_frames, skeleton.num_joints)
     if motion.rotations.shape != (*shape, 3, 3) or motion.positions.shape != (*shape, 3):

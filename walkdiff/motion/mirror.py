@@ -52,13 +52,14 @@ def _permutation(skeleton: Skeleton, pairs: Sequence[tuple[str, str]] | None) ->
         index_pairs = []
         for left, right in pairs:
             if left not in skeleton.names or right not in skeleton.names:
-                raise WalkdiffError(f"mirror pair ({left!r}, {right!r}): expected two joint names of the skeleton")
+                raise WalkdiffError(f"mirror pair ({left!r}, {right!r}): expected two joints of the skeleton")
             index_pairs.append((skeleton.index(left), skeleton.index(right)))
     partner = np.arange(skeleton.num_joints)
     for left, right in index_pairs:
         if partner[left] != left or partner[right] != right or left == right:
             raise WalkdiffError(
-                f"joint {skeleton.names[left]!r} or {skeleton.names[right]!r} is in more than one mirror pair"
+                f"mirror pair ({skeleton.names[left]!r}, {skeleton.names[right]!r}): a joint is paired "
+                "with itself or in more than one pair"
             )
         partner[left], partner[right] = right, left
     # The swap must map the hierarchy onto itself, or the mirrored clip would be on another skeleton.

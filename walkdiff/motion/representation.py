@@ -116,17 +116,16 @@ def _wrap(angle: torch.Tensor) -> torch.Tensor:
 
 
 def _per_step(values: torch.Tensor) -> torch.Tensor:
-    """Values of frames 0..F-2 (one per step to the next frame) -> F frames, the last repeating the one before."""
+    """Values of frames 0..F-2 (one per step to the next frame) -> F frames, the last one repeated."""
     if values.shape[0] == 0:
         return torch.zeros(1, *values.shape[1:], dtype=values.dtype)
     return torch.cat([values, values[-1:]])
 
 
-def foot_contacts(motion: Motion, spec: ContactSpec, world_positions: np.ndarray | None = None) -> np.ndarray:
+def foot_contacts(motion: Motion, spec: ContactSpec) -> np.ndarray:
     """(F, 4) float {0, 1}: left heel, left toe, right heel, right toe (see `ContactSpec`)."""
-    if world_positions is None:
-        world_positions = motion_world_positions(motion)
-    feet = torch.from_numpy(world_positions[:, [motion.skeleton.index(name) for name in spec.joints]])
+    joints = [motion.skeleton.index(name) for name in spec.joints]
+    feet = torch.from_numpy(motion_world_positions(motion)[:, joints])
     speed = _per_step(torch.linalg.norm(feet[1:] - feet[:-1], dim=-1)) * motion.fps
     height = feet[..., 1] - torch.quantile(feet[..., 1], spec.floor_percentile / 100, dim=0)
     return ((speed < spec.speed_threshold) & (height < spec.height_threshold)).double().numpy()
@@ -159,7 +158,9 @@ def encode(motion: Motion, spec: ContactSpec, forward: Sequence[float] = CMU_FOR
 
 
 def _integrate_root(
-    features: torch.Tensor, start_position: Sequence[float] | torch.Tensor | None, start_heading
+    features: torch.Tensor,
+    start_position: Sequence[float] | torch.Tensor | None,
+    start_heading: float | torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Headings (..., F) and root positions (..., F, 3) by summing the per-frame changes."""
     layout = FeatureLayout.from_dim(features.shape[-1])
@@ -172,7 +173,7 @@ def _integrate_root(
     local_step = torch.stack([vel[..., 0], torch.zeros_like(vel[..., 0]), vel[..., 1]], dim=-1)
     world_step = (yaw_matrix(heading) @ local_step.unsqueeze(-1)).squeeze(-1)
     travelled = torch.cumsum(world_step[..., :-1, :], dim=-2)
-    xz = torch.cat([torch.zeros_like(travelled[..., :1, :]), travelled], dim=-2)[..., [0, 2]]
+    xz = torch.cat([torch.zeros_like(world_step[..., :1, :]), travelled], dim=-2)[..., [0, 2]]
     if start_position is not None:
         xz = xz + torch.as_tensor(start_position, dtype=features.dtype, device=features.device).unsqueeze(-2)
     height = features[..., layout.root_height]
@@ -207,7 +208,7 @@ def features_to_positions(
     start_position: Sequence[float] | torch.Tensor | None = None,
     start_heading: float | torch.Tensor = 0.0,
 ) -> torch.Tensor:
-    """World joint positions (..., F, J, 3) from features (..., F, D) and bone offsets (J, 3); differentiable."""
+    """World joint positions (..., F, J, 3) from features (..., F, D) and offsets (J, 3); differentiable."""
     heading, root = _integrate_root(features, start_position, start_heading)
     rotations = _local_rotations(features, heading)
     offsets = skeleton_offsets.to(features.dtype).expand(*root.shape[:-1], -1, 3)

@@ -1,0 +1,100 @@
+"""`walkdiff inspect`, `walkdiff convert` and the LightningCLI front (config printing, overrides)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import synthetic
+import yaml
+
+from walkdiff.cli import main
+from walkdiff.data.xia import CONTACTS
+from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.mirror import mirror
+from walkdiff.motion.representation import decode, encode, start_pose
+from walkdiff.motion.resample import resample
+
+
+@pytest.fixture(autouse=True)
+def plain_argv(monkeypatch):
+    """LightningCLI warns when given args while sys.argv holds pytest's own arguments."""
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+
+
+def test_inspect_reports_a_real_clip(xia_dir, capsys):
+    assert main(["inspect", str(xia_dir / "neutral_01_000.bvh")]) == 0
+    out = capsys.readouterr().out
+    assert "joints:    31" in out
+    assert "120.00 fps" in out
+    assert "left toe" in out and "suspicious: none" in out
+
+
+def test_inspect_flags_a_glitch(tmp_path, capsys):
+    motion = synthetic.walking(120)
+    motion.positions[60:, 0, 0] += 500.0  # the root teleports half way
+    path = tmp_path / "glitch.bvh"
+    synthetic.write_bvh(path, motion)
+    assert main(["inspect", str(path)]) == 0
+    assert "jumps faster than" in capsys.readouterr().out
+
+
+def test_bad_file_gives_a_clear_error_and_exit_code(tmp_path, capsys):
+    path = tmp_path / "broken.bvh"
+    synthetic.write_bvh(path, synthetic.walking(10))
+    lines = path.read_text().splitlines()
+    lines[-1] = "oops " + lines[-1].split(" ", 1)[1]
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["inspect", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert f"{path}:{len(lines)}" in err and "oops" in err
+
+
+def test_convert_round_trips_through_the_representation(xia_dir, tmp_path, capsys):
+    source = xia_dir / "old_07_000.bvh"
+    out = tmp_path / "same.bvh"
+    assert main(["convert", str(source), str(out)]) == 0
+    original, converted = read_bvh(source), read_bvh(out)
+    error = np.abs(motion_world_positions(original) - motion_world_positions(converted)).max()
+    assert error < 1e-3  # 6-decimal BVH text on both sides
+
+
+def test_convert_resamples_and_mirrors(xia_dir, tmp_path):
+    source = xia_dir / "proud_01_000.bvh"
+    out = tmp_path / "mirrored30.bvh"
+    assert main(["convert", str(source), str(out), "--fps", "30", "--mirror"]) == 0
+    original, converted = read_bvh(source), read_bvh(out)
+    assert converted.fps == pytest.approx(30.0)
+    assert abs(converted.duration - original.duration) <= 1 / 30
+    # The command is the library's resample -> mirror -> encode -> decode, placed at the clip's start.
+    expected = mirror(resample(original, 30))
+    position, heading = start_pose(expected)
+    expected = decode(encode(expected, CONTACTS), expected.skeleton, expected.frame_time, position, heading)
+    error = np.abs(motion_world_positions(converted) - motion_world_positions(expected)).max()
+    assert error < 1e-3
+
+
+def test_print_config_applies_command_line_overrides(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["fit", "--config", "conf/xia_cpu.yaml", "--model.lambda_adv", "0.05", "--print_config"])
+    assert stop.value.code == 0
+    config = yaml.safe_load(capsys.readouterr().out)
+    assert config["model"]["init_args"]["lambda_adv"] == 0.05
+    assert config["model"]["init_args"]["timesteps"] == 100
+    assert config["trainer"]["precision"] == "32-true"
+
+
+def test_unknown_tracking_uri_fails_before_training(xia_dir, capsys):
+    code = main(
+        [
+            "fit",
+            "--config",
+            "conf/xia_cpu.yaml",
+            "--trainer.logger.init_args.tracking_uri",
+            "http://127.0.0.1:9/",
+            "--trainer.max_epochs",
+            "1",
+        ]
+    )
+    assert code == 1
+    assert "http://127.0.0.1:9/" in capsys.readouterr().err

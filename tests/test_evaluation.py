@@ -1,0 +1,135 @@
+"""`walkdiff evaluate` end to end on real windows, and the metrics callback on a tiny generator."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from lightning.pytorch.loggers import MLFlowLogger
+from mlflow import MlflowClient
+from test_evaluator import make_xia_subset, tiny_datamodule, tiny_trainer
+
+from walkdiff.callbacks.metrics import MotionMetrics
+from walkdiff.cli import main
+from walkdiff.evaluation import METRICS, WindowSet, balanced_labels, halves_fmd, window_set
+from walkdiff.models.evaluator import MotionEvaluator
+from walkdiff.models.styled_ddpm import StyledMotionDiffusion
+
+
+@pytest.fixture(scope="module")
+def setup(xia_dir, tmp_path_factory):
+    """A data subset and an evaluator checkpoint trained one epoch on it (its accuracy does not matter)."""
+    tmp = tmp_path_factory.mktemp("evaluation")
+    root, cache = make_xia_subset(xia_dir, tmp / "data"), tmp / "cache"
+    torch.manual_seed(0)
+    dm = tiny_datamodule(root, cache)
+    trainer = tiny_trainer(max_epochs=1, limit_val_batches=1)
+    trainer.fit(MotionEvaluator(dm.spec, hidden=16, embed_dim=8, blocks=1), dm)
+    ckpt = tmp / "evaluator.ckpt"
+    trainer.save_checkpoint(ckpt)
+    return {"root": root, "cache": cache, "ckpt": ckpt, "tmp": tmp}
+
+
+def test_balanced_labels_cover_every_pair():
+    style, content = balanced_labels(48, 8, [0, 3])
+    assert torch.bincount(style).tolist() == [6] * 8
+    pairs = torch.stack([style, content], dim=1).unique(dim=0)
+    assert len(pairs) == 16 and set(content.tolist()) == {0, 3}
+
+
+def test_window_set_never_crosses_clips():
+    class Info:
+        style, content = 2, 1
+
+    clips = [
+        (Info, "a", torch.arange(10.0)[:, None].repeat(1, 3).numpy()),
+        (Info, "b", torch.zeros(3, 3).numpy()),
+    ]
+    windows = window_set(clips, window=4, stride=2)
+    assert windows.raw.shape == (4, 4, 3)  # starts 0, 2, 4, 6 in the first clip; the second is too short
+    assert windows.raw[:, :, 0].tolist()[-1] == [6.0, 7.0, 8.0, 9.0]
+    assert windows.clip.tolist() == [0] * 4 and windows.style.tolist() == [2] * 4
+
+
+def test_halves_fmd_is_zero_for_identical_halves():
+    # Two clips per style with the same features: whichever halves, the two sets are identical.
+    features = torch.randn(6, 4, generator=torch.Generator().manual_seed(0)).repeat(2, 1)
+    style, clip = torch.arange(6).repeat(2) % 3, torch.arange(12) // 6 * 3 + torch.arange(12) % 3
+    windows = WindowSet(torch.zeros(12, 2, 3), style, style, clip, features=features)
+    assert halves_fmd(windows, torch.Generator().manual_seed(0)) == pytest.approx(0.0, abs=1e-3)
+
+
+def test_evaluate_real_only_writes_both_reports(setup, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the MLflow database lands in tmp_path/mlruns
+    out = tmp_path / "report"
+    args = ["evaluate", "--evaluator", str(setup["ckpt"]), "--real-only", "--num", "40", "--repeats", "3"]
+    args += ["--seed", "3", "--contents", "walk", "--root", str(setup["root"])]
+    assert main(args + ["--out", str(out), "--mlflow-experiment", "eval-test"]) == 0
+
+    report = json.loads((out / "report.json").read_text())
+    assert list(report["rows"]) == ["real test", "real train vs test"]
+    for row in report["rows"].values():
+        assert set(row) == set(METRICS)
+        assert row["fmd"]["n"] == 3 and row["fmd"]["ci95"] >= 0
+        assert 0 <= row["style_acc"]["mean"] <= 1 and 0 <= row["content_acc"]["mean"] <= 1
+    # The real test windows are drawn from the very set FMD is measured against: closer than training data.
+    assert report["rows"]["real test"]["fmd"]["mean"] < report["rows"]["real train vs test"]["fmd"]["mean"]
+    assert report["fmd_test_halves"]["mean"] > 0
+    assert report["data"]["contents"] == ["walk"] and 0 < report["data"]["clips"]["test"] <= 24  # 3 per style
+    markdown = (out / "report.md").read_text()
+    assert "| real test |" in markdown and "| real train vs test |" in markdown
+    assert "FMD(test half A, test half B)" in markdown
+
+    # --seed makes the run repeatable.
+    again = tmp_path / "again"
+    assert main(args + ["--out", str(again)]) == 0
+    assert json.loads((again / "report.json").read_text())["rows"] == report["rows"]
+
+    client = MlflowClient(tracking_uri="sqlite:///mlruns/mlflow.db")
+    (run,) = client.search_runs([client.get_experiment_by_name("eval-test").experiment_id])
+    assert run.data.metrics["real_test/fmd"] == pytest.approx(report["rows"]["real test"]["fmd"]["mean"])
+    assert {a.path for a in client.list_artifacts(run.info.run_id, "evaluation")} == {
+        "evaluation/report.json",
+        "evaluation/report.md",
+    }
+
+
+def test_evaluate_needs_a_generator_unless_real_only(setup, tmp_path, capsys):
+    assert main(["evaluate", "--evaluator", str(setup["ckpt"]), "--out", str(tmp_path)]) == 1
+    assert "--ckpt" in capsys.readouterr().err
+    assert main(["evaluate", "--evaluator", str(tmp_path / "missing.ckpt"), "--real-only", "--out", "x"]) == 1
+
+
+def test_callback_logs_metrics_and_images(setup, tmp_path):
+    torch.manual_seed(0)
+    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=10)
+    logger = MLFlowLogger(
+        experiment_name="callback-test",
+        tracking_uri=f"sqlite:///{tmp_path}/mlflow.db",
+        artifact_location=str(tmp_path / "artifacts"),
+    )
+    callback = MotionMetrics(str(setup["ckpt"]), every_n_epochs=1, num_samples=24, sampler="ddim", steps=2)
+    trainer = tiny_trainer(
+        max_epochs=1,
+        limit_train_batches=2,
+        limit_val_batches=1,
+        log_every_n_steps=1,
+        logger=logger,
+        callbacks=[callback],
+    )
+    trainer.fit(model, dm)
+
+    logged = {k for k in trainer.callback_metrics if k.startswith("metrics/")}
+    assert {f"metrics/{name}" for name in METRICS} <= logged
+    assert 0 <= float(trainer.callback_metrics["metrics/style_acc"]) <= 1
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")
+    run = client.get_run(logger.run_id)
+    assert "metrics/fmd" in run.data.metrics
+    images = {a.path for a in client.list_artifacts(logger.run_id, "metrics/epoch_0001")}
+    assert images == {"metrics/epoch_0001/style_confusion.png", "metrics/epoch_0001/feature_pca.png"}
+    for name in images:
+        path = client.download_artifacts(logger.run_id, name, str(tmp_path))
+        assert Path(path).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
