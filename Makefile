@@ -6,7 +6,9 @@ LOCK     := conf/constraints.txt
 CONFIG   ?=
 MLFLOW_DB := sqlite:///mlruns/mlflow.db
 
-.PHONY: install test train ui lint clean
+EVALUATOR := checkpoints/evaluator_xia/last.ckpt
+
+.PHONY: install test train evaluator ui lint clean
 
 install: $(STAMP)
 
@@ -19,8 +21,13 @@ $(STAMP): pyproject.toml $(LOCK)
 test: install
 	$(PY) -m pytest -q
 
+# The motion evaluator (style + content classifier) that training metrics and `walkdiff evaluate` use.
+evaluator: $(EVALUATOR)
+$(EVALUATOR): | install
+	$(VENV)/bin/walkdiff fit --config conf/evaluator_xia.yaml
+
 # The paper's GPU setting where a GPU is present, the 2-core CPU setting where not (override: CONFIG=...).
-train: install
+train: install $(EVALUATOR)
 	@cfg="$(CONFIG)"; \
 	if [ -z "$$cfg" ]; then \
 	  if $(PY) -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)"; then \

@@ -51,7 +51,11 @@ def test_split_follows_the_published_protocol(xia_dir):
     clips = xia.list_clips(xia_dir)
     splits = xia.split_clips(clips, ContentSelection.parse("all", xia.GROUPS))
     names = {k: {c.name for c in v} for k, v in splits.items()}
-    assert not names["train"] & names["test"] and not names["train"] & names["val"] and not names["val"] & names["test"]
+    assert (
+        not names["train"] & names["test"]
+        and not names["train"] & names["val"]
+        and not names["val"] & names["test"]
+    )
     assert sum(len(v) for v in names.values()) == 572
     for style in range(8):
         per_group = collections.Counter(xia.GROUPS[c.content] for c in splits["test"] if c.style == style)
@@ -94,7 +98,9 @@ def test_cache_is_reused_and_rebuilt_when_a_file_or_setting_changes(tmp_path):
     cache = tmp_path / "cache"
 
     def module(**kw):
-        dm = MotionDataModule(root=str(tmp_path), contents="all", cache_dir=str(cache), preprocess_workers=1, **kw)
+        dm = MotionDataModule(
+            root=str(tmp_path), contents="all", cache_dir=str(cache), preprocess_workers=1, **kw
+        )
         return dm._ensure_processed(progress=False)
 
     first = module()

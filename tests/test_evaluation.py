@@ -96,6 +96,28 @@ def test_evaluate_real_only_writes_both_reports(setup, tmp_path, monkeypatch):
     }
 
 
+def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path):
+    torch.manual_seed(0)
+    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=10)
+    trainer = tiny_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=1, log_every_n_steps=1)
+    trainer.fit(model, dm)
+    ckpt = tmp_path / "generator.ckpt"
+    trainer.save_checkpoint(ckpt)
+
+    out = tmp_path / "report"
+    args = ["evaluate", "--ckpt", str(ckpt), "--evaluator", str(setup["ckpt"]), "--out", str(out)]
+    assert main(args + ["--num", "16", "--repeats", "2", "--sampler", "ddim", "--steps", "2"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert list(report["rows"]) == ["generated", "real test", "real train vs test"]
+    assert report["data"]["contents"] == ["walk"]  # the generator's data selection
+    generated = report["rows"]["generated"]
+    assert set(generated) == set(METRICS) and generated["fmd"]["n"] == 2
+    # An untrained generator is far from the real data.
+    assert generated["fmd"]["mean"] > report["rows"]["real test"]["fmd"]["mean"]
+    assert "| generated |" in (out / "report.md").read_text()
+
+
 def test_evaluate_needs_a_generator_unless_real_only(setup, tmp_path, capsys):
     assert main(["evaluate", "--evaluator", str(setup["ckpt"]), "--out", str(tmp_path)]) == 1
     assert "--ckpt" in capsys.readouterr().err

@@ -15,7 +15,9 @@ import torch
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion, TrainingDiverged
 
-TINY = dict(d_model=32, layers=1, heads=2, dropout=0.1, lambda_adv=0.05, adv_warmup_batches=2, lr_warmup_batches=2)
+TINY = dict(
+    d_model=32, layers=1, heads=2, dropout=0.1, lambda_adv=0.05, adv_warmup_batches=2, lr_warmup_batches=2
+)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +59,9 @@ class InterruptAt(L.Callback):
             raise Interrupted
 
 
-def fit(root: Path, ckpt_dir: Path, ckpt_path: str | None = None, interrupt_at: int | None = None) -> LossRecorder:
+def fit(
+    root: Path, ckpt_dir: Path, ckpt_path: str | None = None, interrupt_at: int | None = None
+) -> LossRecorder:
     L.seed_everything(7)
     dm = datamodule(root)
     model = StyledMotionDiffusion(dm.spec, **TINY)
@@ -142,8 +146,12 @@ def test_ddp_two_processes_through_the_cli(tiny_root, tmp_path):
         "--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu",
         "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
         "--trainer.check_val_every_n_epoch", "1", "--trainer.enable_progress_bar", "false",
-        "--model.d_model", "32", "--model.layers", "1", "--model.heads", "2", "--model.adv_warmup_batches", "0",
-        "--data.batch_size", "4", "--data.cache_dir", str(tmp_path / "cache"), "--data.preprocess_workers", "1",
+        "--model.d_model", "32", "--model.layers", "1", "--model.heads", "2",
+        "--model.adv_warmup_batches", "0", "--data.batch_size", "4",
+        # No metrics callback here (it needs a trained evaluator): just the latest checkpoint.
+        "--trainer.callbacks", '[{"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", '
+        '"init_args": {"dirpath": "checkpoints/xia_cpu", "filename": "last"}}]',
+        "--data.cache_dir", str(tmp_path / "cache"), "--data.preprocess_workers", "1",
     ]  # fmt: skip
     # Run in tmp_path: the config's relative mlruns/ and checkpoints/ land there.
     result = subprocess.run(command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)

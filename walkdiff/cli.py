@@ -67,7 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("inspect", help="summarise a BVH file: joints, frames, fps, contacts, anything suspicious")
+    p = sub.add_parser(
+        "inspect", help="summarise a BVH file: joints, frames, fps, contacts, anything suspicious"
+    )
     p.add_argument("file")
     p.add_argument("--dataset", default="xia", help="contact thresholds of this dataset (default xia)")
 
@@ -106,6 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True)
     b.add_argument("--dataset", default="xia")
     b.add_argument("--root", default=None)
+    b = bench.add_parser("train", help="training windows/s under Lightning vs a plain PyTorch loop")
+    b.add_argument("--out", required=True)
+    b.add_argument("--config", default="conf/xia_cpu.yaml")
+    b.add_argument("--batches", type=int, default=30, help="batches timed per repeat")
     return parser
 
 
@@ -133,7 +139,11 @@ def run_command(args: argparse.Namespace) -> int:
     elif args.command == "convert":
         from walkdiff.tools import convert_file
 
-        print(convert_file(args.input, args.output, fps=args.fps, mirror_sides=args.mirror, dataset=args.dataset))
+        print(
+            convert_file(
+                args.input, args.output, fps=args.fps, mirror_sides=args.mirror, dataset=args.dataset
+            )
+        )
     elif args.command == "evaluate":
         from walkdiff.evaluation import evaluate
 

@@ -378,8 +378,8 @@ def format_report(report: dict) -> str:
     split = s["split"]
     lines = ["# walkdiff evaluation", ""]
     if s["ckpt"]:
-        lines.append(f"- generator: `{s['ckpt']}` (sampler {s['sampler']}, steps {s['steps'] or 'all'}, "
-                     f"guidance {s['guidance']})")  # fmt: skip
+        sampling = f"sampler {s['sampler']}, steps {s['steps'] or 'all'}, guidance {s['guidance']}"
+        lines.append(f"- generator: `{s['ckpt']}` ({sampling})")
     lines += [
         f"- evaluator: `{s['evaluator']}`",
         f"- data: {d['dataset']}, contents {', '.join(d['contents'])}, {d['window']}-frame windows at "
@@ -399,7 +399,7 @@ def format_report(report: dict) -> str:
         "",
         f"FMD({split} half A, {split} half B), halves split by clip: {format_summary(halves, 3)}",
         "",
-        "FMD is measured against the features of the whole real " + split + " split. → : closer to the real "
+        f"FMD is measured against the features of the whole real {split} split. → : closer to the real "
         "rows is better. Skating: share of contact steps whose foot slides faster than the contact "
         "threshold, and mean slide speed (units/s); jitter: mean jerk (units/s³).",
         "",

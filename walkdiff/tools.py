@@ -18,7 +18,6 @@ from walkdiff.motion.skeleton import Motion
 def suspicious(motion: Motion, world: np.ndarray) -> list[str]:
     """Things worth a second look before training on a clip."""
     notes = []
-    skeleton = motion.skeleton
     if motion.num_frames < 10:
         notes.append(f"very short clip ({motion.num_frames} frames)")
     if not 10 <= motion.fps <= 250:
@@ -48,9 +47,10 @@ def inspect_file(path: str, dataset: str = "xia") -> str:
     contacts = foot_contacts(motion, dataset_module(dataset).CONTACTS)
     root = motion.root_positions
     walked = np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1).sum()
+    first = ", ".join(skeleton.names[:6]) + (", ..." if skeleton.num_joints > 6 else "")
     lines = [
         f"file:      {path}",
-        f"joints:    {skeleton.num_joints} ({', '.join(skeleton.names[:6])}{', ...' if skeleton.num_joints > 6 else ''})",
+        f"joints:    {skeleton.num_joints} ({first})",
         f"end sites: {len(skeleton.end_sites)}",
         f"channels:  {sum(len(c) for c in skeleton.channels)} per frame",
         f"frames:    {motion.num_frames} at {motion.fps:.2f} fps ({motion.duration:.2f} s)",
@@ -71,7 +71,7 @@ def inspect_file(path: str, dataset: str = "xia") -> str:
 def convert_file(
     source: str, target: str, *, fps: float | None = None, mirror_sides: bool = False, dataset: str = "xia"
 ) -> str:
-    """BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed where the input started."""
+    """BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed where it started."""
     motion = read_bvh(source)
     if fps is not None:
         motion = resample(motion, fps)
@@ -82,4 +82,6 @@ def convert_file(
     out = decode(features, motion.skeleton, motion.frame_time, position, heading)
     Path(target).parent.mkdir(parents=True, exist_ok=True)
     write_bvh(target, out)
-    return f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{' (mirrored)' if mirror_sides else ''}"
+    return (
+        f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{' (mirrored)' if mirror_sides else ''}"
+    )

@@ -11,6 +11,7 @@ import torch
 from matplotlib.figure import Figure
 from torchmetrics.classification import MulticlassConfusionMatrix
 
+from walkdiff.errors import WalkdiffError
 from walkdiff.evaluation import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
 from walkdiff.tracking import log_file
 
@@ -20,7 +21,7 @@ class MotionMetrics(L.Callback):
     images `metrics/epoch_NNNN/style_confusion.png` and `metrics/epoch_NNNN/feature_pca.png`.
 
     Rank 0 generates and scores; the values are broadcast so that every rank logs the same numbers (and a
-    ModelCheckpoint may monitor them). The real test windows are embedded once; the generation noise is
+    ModelCheckpoint may monitor them). The real windows are embedded once; the generation noise is
     the same at every epoch, so successive values differ by the model only.
 
     Args:
@@ -30,6 +31,8 @@ class MotionMetrics(L.Callback):
         sampler, steps, guidance: passed to the model's `generate`.
         batch_size: windows generated at once.
         seed: seed of the generation noise and of the metrics' random pairs.
+        split: the real windows FMD is measured against. 'train' by default: a checkpoint chosen on
+            these numbers must not have seen the test split, and validation has too few windows.
     """
 
     def __init__(
@@ -42,7 +45,9 @@ class MotionMetrics(L.Callback):
         guidance: float = 1.0,
         batch_size: int = 128,
         seed: int = 0,
+        split: str = "train",
     ):
+        self.split = split
         self.evaluator_ckpt = evaluator_ckpt
         self.every_n_epochs = every_n_epochs
         self.num_samples = num_samples
@@ -53,6 +58,14 @@ class MotionMetrics(L.Callback):
         self.seed = seed
         self.scorer: MotionScorer | None = None
         self.real: WindowSet | None = None
+
+    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not Path(self.evaluator_ckpt).is_file():  # fail now, not after the first epochs
+            raise WalkdiffError(
+                "evaluator checkpoint not found; train it first with `make evaluator` "
+                "(walkdiff fit --config conf/evaluator_xia.yaml)",
+                path=self.evaluator_ckpt,
+            )
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         epoch = trainer.current_epoch + 1
@@ -73,7 +86,9 @@ class MotionMetrics(L.Callback):
         evaluator = load_evaluator(self.evaluator_ckpt, pl_module.device)
         skeleton = pl_module.skeleton if pl_module.skeleton is not None else datamodule.skeleton
         self.scorer = MotionScorer(evaluator, skeleton, pl_module.spec["fps"], batch_size=self.batch_size)
-        self.real = self.scorer.embed(window_set(datamodule.split_features("test"), pl_module.spec["window"]))
+        self.real = self.scorer.embed(
+            window_set(datamodule.split_features(self.split), pl_module.spec["window"])
+        )
         self.scorer.set_reference(self.real)
         contents = list(pl_module.spec["contents"])
         self.content_ids = [contents.index(name) for name in datamodule.selection.names]
@@ -120,8 +135,15 @@ def confusion_figure(matrix: np.ndarray, names: list[str], path: Path) -> None:
     ax.set_xlabel("recognised style")
     ax.set_ylabel("requested style")
     for (row, col), value in np.ndenumerate(matrix):
-        ax.text(col, row, f"{value:.2f}", ha="center", va="center", color="white" if value > 0.5 else "black",
-                fontsize=7)  # fmt: skip
+        ax.text(
+            col,
+            row,
+            f"{value:.2f}",
+            ha="center",
+            va="center",
+            color="white" if value > 0.5 else "black",
+            fontsize=7,
+        )
     figure.colorbar(image, ax=ax, shrink=0.8)
     figure.savefig(path, dpi=100)
 
@@ -138,10 +160,22 @@ def projection_figure(real: WindowSet, generated: WindowSet, names: list[str], p
     ax = figure.add_subplot()
     colours = [f"C{i % 10}" for i in range(len(names))]
     for style, name in enumerate(names):
-        ax.scatter(*real_points[real.style.numpy() == style].T, s=14, marker="o", facecolors="none",
-                   edgecolors=colours[style], linewidths=0.8, label=name)  # fmt: skip
-        ax.scatter(*generated_points[generated.style.numpy() == style].T, s=14, marker="x",
-                   color=colours[style], linewidths=0.8)  # fmt: skip
+        ax.scatter(
+            *real_points[real.style.numpy() == style].T,
+            s=14,
+            marker="o",
+            facecolors="none",
+            edgecolors=colours[style],
+            linewidths=0.8,
+            label=name,
+        )
+        ax.scatter(
+            *generated_points[generated.style.numpy() == style].T,
+            s=14,
+            marker="x",
+            color=colours[style],
+            linewidths=0.8,
+        )
     ax.set_xlabel("PC 1")
     ax.set_ylabel("PC 2")
     ax.set_title("evaluator features: o real test, x generated")

@@ -65,7 +65,9 @@ class SampleClips(L.Callback):
                 files.append(path)
                 positions.append(motion_world_positions(motion))
             gif = out / "styles.gif"
-            render_gif(gif, positions, skeleton.parents, pl_module.spec["fps"], titles=styles, names=skeleton.names)
+            render_gif(
+                gif, positions, skeleton.parents, pl_module.spec["fps"], titles=styles, names=skeleton.names
+            )
             files.append(gif)
             for path in files:
                 log_file(logger, path, artifact_dir)

@@ -39,7 +39,9 @@ class DataSpec:
 class WindowDataset(Dataset):
     """Fixed-length windows cut inside clips (never across them), normalised on the fly."""
 
-    def __init__(self, clips: list[tuple[ClipInfo, str, np.ndarray]], window: int, stride: int, norm: Normalizer):
+    def __init__(
+        self, clips: list[tuple[ClipInfo, str, np.ndarray]], window: int, stride: int, norm: Normalizer
+    ):
         self.features = [torch.from_numpy(norm.normalize(f)) for _, _, f in clips]
         self.labels = [(c.style, c.content, name) for c, name, _ in clips]
         self.index = [

@@ -27,7 +27,6 @@ from walkdiff.motion.representation import encode
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
 
-
 # Bump when encode() or the loaders change what they produce: old caches then rebuild.
 FEATURES_VERSION = 1
 
@@ -92,7 +91,8 @@ def preprocess(
         listing = "\n  ".join(err for _, err in failed)
         if on_error == "fail":
             raise WalkdiffError(
-                f"{len(failed)} clip(s) could not be read (set data.on_error=skip to leave them out):\n  {listing}"
+                f"{len(failed)} clip(s) could not be read "
+                f"(set data.on_error=skip to leave them out):\n  {listing}"
             )
         warnings.warn(f"skipping {len(failed)} unreadable clip(s):\n  {listing}", stacklevel=2)
     kept = [(clip, r) for clip, r in zip(clips, results) if r[3] is None]

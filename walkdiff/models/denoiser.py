@@ -1,4 +1,4 @@
-"""The sequence denoiser: a transformer over the frames of a window, conditioned on step, content and style."""
+"""The sequence denoiser: a transformer over a window's frames, conditioned on step, content and style."""
 
 from __future__ import annotations
 

@@ -27,7 +27,9 @@ class MotionDiscriminator(nn.Module):
         width = feature_dim
         for i in range(layers):
             blocks += [
-                nn.utils.parametrizations.spectral_norm(nn.Conv1d(width, hidden, 3, stride=1 if i == 0 else 2, padding=1)),
+                nn.utils.parametrizations.spectral_norm(
+                    nn.Conv1d(width, hidden, 3, stride=1 if i == 0 else 2, padding=1)
+                ),
                 nn.LeakyReLU(0.2),
             ]
             width = hidden

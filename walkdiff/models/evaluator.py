@@ -13,9 +13,7 @@ its own normaliser, which it keeps in its state dict.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
 
-import lightning as L
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -23,8 +21,7 @@ from torchmetrics.classification import MulticlassAccuracy
 
 from walkdiff.data.datamodule import DataSpec
 from walkdiff.errors import WalkdiffError
-from walkdiff.motion.representation import Normalizer
-from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+from walkdiff.models.base import MotionModule
 
 
 class ConvBlock(nn.Module):
@@ -40,7 +37,7 @@ class ConvBlock(nn.Module):
         return x + self.dropout(F.gelu(self.norm(self.conv(x))))
 
 
-class MotionEvaluator(L.LightningModule):
+class MotionEvaluator(MotionModule):
     """Recognises style and content of motion windows (B, F, D).
 
     Args:
@@ -71,50 +68,21 @@ class MotionEvaluator(L.LightningModule):
         lr: float = 1e-3,
         weight_decay: float = 1e-2,
     ):
-        super().__init__()
-        if data_spec is None:
-            raise WalkdiffError(
-                "model.data_spec is missing: it is linked from the data module by `walkdiff fit`"
-            )
-        spec = data_spec if isinstance(data_spec, dict) else asdict(data_spec)
+        super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"])
-        self.hparams["data_spec"] = spec
-        self.spec = spec
+        self.hparams["data_spec"] = spec = self.spec
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
 
-        self.normalizer = Normalizer(spec["feature_dim"])
         self.input = nn.Conv1d(spec["feature_dim"], hidden, kernel, padding=kernel // 2)
         self.blocks = nn.Sequential(*[ConvBlock(hidden, kernel, dropout) for _ in range(blocks)])
         self.embed = nn.Linear(hidden, embed_dim)
         self.head_dropout = nn.Dropout(dropout)
         self.style_head = nn.Linear(embed_dim, num_styles)
         self.content_head = nn.Linear(embed_dim, num_contents)
-        self.skeleton: Skeleton | None = None
 
         for split in ("train", "val", "test"):
             setattr(self, f"{split}_style_acc", MulticlassAccuracy(num_styles, average="micro"))
             setattr(self, f"{split}_content_acc", MulticlassAccuracy(num_contents, average="micro"))
-
-    # ---------------------------------------------------------------- data plumbing (as the generator)
-
-    def setup(self, stage: str) -> None:
-        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
-        if datamodule is None:
-            return
-        datamodule.setup(stage)
-        # Only when training: validate/test runs restore the checkpoint's normaliser after setup anyway.
-        if stage == "fit":
-            self.normalizer.load_state_dict(datamodule.normalizer.state_dict())
-        if self.skeleton is None:
-            self.skeleton = datamodule.skeleton
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        if self.skeleton is not None:
-            checkpoint["skeleton"] = skeleton_to_dict(self.skeleton)
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        if "skeleton" in checkpoint:
-            self.skeleton = skeleton_from_dict(checkpoint["skeleton"])
 
     # ---------------------------------------------------------------- network
 

@@ -3,13 +3,13 @@
 Loss of the generator (the denoiser), per batch:
     L = ||target - net(x_t, t, c, s)||^2
         + lambda_contact * w_t * ||contacts(x0_hat) - contacts(x0)||^2
-        + lambda_root    * w_t * ||root(x0_hat) - root(x0)||^2      (root integrated from predicted velocities)
+        + lambda_root    * w_t * ||root(x0_hat) - root(x0)||^2   (root integrated from velocities)
         + lambda_adv     * w_t * 1/2 (D(x0_hat) - 1)^2                (LSGAN)
 The discriminator sees real x0 against detached x0_hat: 1/2 (D(x0) - 1)^2 + 1/2 w_t D(x0_hat)^2.
 
 Why w_t = alpha_bar_t: with eps-prediction, x0_hat = (x_t - sqrt(1 - abar) eps_hat) / sqrt(abar), so an
-error e in eps becomes an error sqrt((1 - abar) / abar) e in x0_hat: at t near T (abar ~ 2e-7 for the
-cosine schedule at T = 100) that is ~2000 e. Multiplying the squared x0-space terms by abar_t caps them at
+error e in eps becomes an error sqrt((1 - abar) / abar) e in x0_hat: at t near T (abar ~ 2e-5 for the
+default schedule) that is ~200 e. Multiplying the squared x0-space terms by abar_t caps them at
 (1 - abar_t) e^2, no larger than the eps loss itself, while keeping them at full weight for small t,
 where x0_hat is a meaningful motion. It is smooth (no threshold to tune) and needs no extra head.
 
@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict
 
-import lightning as L
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -33,17 +31,17 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 from walkdiff.data.datamodule import DataSpec
 from walkdiff.diffusion import GaussianDiffusion, ddim_sample, ddpm_sample, guided_batched
 from walkdiff.errors import WalkdiffError
+from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
-from walkdiff.motion.representation import FeatureLayout, Normalizer, decode_root
-from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+from walkdiff.motion.representation import decode_root
 
 
 class TrainingDiverged(RuntimeError):
     """A loss term became NaN or infinite; the message names the batch and the term."""
 
 
-class StyledMotionDiffusion(L.LightningModule):
+class StyledMotionDiffusion(MotionModule):
     def __init__(
         self,
         data_spec: DataSpec | dict | None = None,
@@ -52,9 +50,9 @@ class StyledMotionDiffusion(L.LightningModule):
         heads: int = 4,
         dropout: float = 0.1,
         timesteps: int = 100,
-        schedule: str = "cosine",
-        beta_start: float = 1e-4,
-        beta_end: float = 0.02,
+        schedule: str = "linear",
+        beta_start: float = 1e-3,
+        beta_end: float = 0.2,
         prediction: str = "eps",
         lambda_contact: float = 1.0,
         lambda_root: float = 1.0,
@@ -69,48 +67,27 @@ class StyledMotionDiffusion(L.LightningModule):
         grad_clip: float = 1.0,
         ema_decay: float = 0.999,
     ):
-        super().__init__()
-        if data_spec is None:
-            raise WalkdiffError("model.data_spec is missing: it is linked from the data module by `walkdiff fit`")
-        spec = data_spec if isinstance(data_spec, dict) else asdict(data_spec)
+        super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"])
-        self.hparams["data_spec"] = spec
-        self.spec = spec
+        self.hparams["data_spec"] = spec = self.spec
         self.automatic_optimization = False
 
-        self.layout = FeatureLayout(spec["num_joints"])
-        self.normalizer = Normalizer(spec["feature_dim"])
         self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
-        self.denoiser = MotionDenoiser(spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout)
+        self.denoiser = MotionDenoiser(
+            spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout
+        )
         self.discriminator = (
-            MotionDiscriminator(spec["feature_dim"], num_styles, num_contents, conditional=conditional_discriminator)
+            MotionDiscriminator(
+                spec["feature_dim"], num_styles, num_contents, conditional=conditional_discriminator
+            )
             if lambda_adv > 0
             else None
         )
-        self.ema = AveragedModel(self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True)
+        self.ema = AveragedModel(
+            self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True
+        )
         self.ema.requires_grad_(False)
-        self.skeleton: Skeleton | None = None
-
-    # ---------------------------------------------------------------- data plumbing
-
-    def setup(self, stage: str) -> None:
-        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
-        if datamodule is None:
-            return
-        datamodule.setup(stage)
-        if stage == "fit":  # a resumed run then loads the same statistics back from its checkpoint
-            self.normalizer.load_state_dict(datamodule.normalizer.state_dict())
-        if self.skeleton is None:
-            self.skeleton = datamodule.skeleton
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        if self.skeleton is not None:
-            checkpoint["skeleton"] = skeleton_to_dict(self.skeleton)
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        if "skeleton" in checkpoint:
-            self.skeleton = skeleton_from_dict(checkpoint["skeleton"])
 
     @property
     def optimizers_per_batch(self) -> int:
@@ -123,7 +100,9 @@ class StyledMotionDiffusion(L.LightningModule):
     # ---------------------------------------------------------------- losses
 
     def _noisy(self, x0: torch.Tensor, generator: torch.Generator | None = None):
-        t = torch.randint(0, self.diffusion.num_timesteps, (x0.shape[0],), device=x0.device, generator=generator)
+        t = torch.randint(
+            0, self.diffusion.num_timesteps, (x0.shape[0],), device=x0.device, generator=generator
+        )
         noise = torch.randn(x0.shape, device=x0.device, generator=generator)
         return t, noise, self.diffusion.q_sample(x0, t, noise)
 
@@ -132,7 +111,21 @@ class StyledMotionDiffusion(L.LightningModule):
         raw = self.normalizer.denormalize(x)
         return raw[..., self.layout.contacts], decode_root(raw)
 
-    def generator_losses(self, batch: dict, x0_hat: torch.Tensor, out, target, t) -> dict[str, torch.Tensor]:
+    def denoise(
+        self, batch: dict, net=None, cond_drop: float = 0.0, generator: torch.Generator | None = None
+    ):
+        """Noise x0 to a random level and run the network: (output, its target, x0_hat, t)."""
+        net = net or self.denoiser
+        x0 = batch["features"]
+        t, noise, x_t = self._noisy(x0, generator)
+        style = net.style.drop(batch["style"], cond_drop)
+        content = net.content.drop(batch["content"], cond_drop)
+        out = net(x_t, t, style, content)
+        return out, self.diffusion.training_target(x0, noise, t), self.diffusion.predict_x0(out, x_t, t), t
+
+    def generator_losses(
+        self, batch: dict, out, target, x0_hat, t, adversarial: bool
+    ) -> dict[str, torch.Tensor]:
         x0 = batch["features"]
         weight = self.diffusion.alphas_cumprod[t]  # (B,), see the module docstring
         contact_hat, root_hat = self._geometry(x0_hat)
@@ -142,12 +135,19 @@ class StyledMotionDiffusion(L.LightningModule):
             "contact": (weight * (contact_hat - contact).pow(2).mean(dim=(1, 2))).mean(),
             "root": (weight * (root_hat - root).pow(2).mean(dim=(1, 2))).mean(),
         }
-        if self.discriminator is not None and self.batches_done >= self.hparams.adv_warmup_batches:
+        if adversarial:
             fake = self.discriminator(x0_hat, batch["style"], batch["content"])
             losses["adv"] = (weight * 0.5 * (fake - 1).pow(2)).mean()
         return losses
 
-    def discriminator_loss(self, batch: dict, x0_hat: torch.Tensor, t: torch.Tensor) -> dict[str, torch.Tensor]:
+    def total_loss(self, losses: dict[str, torch.Tensor]) -> torch.Tensor:
+        h = self.hparams
+        lambdas = {"eps": 1.0, "contact": h.lambda_contact, "root": h.lambda_root, "adv": h.lambda_adv}
+        return sum(lambdas[k] * v for k, v in losses.items())
+
+    def discriminator_loss(
+        self, batch: dict, x0_hat: torch.Tensor, t: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
         weight = self.diffusion.alphas_cumprod[t]
         real = self.discriminator(batch["features"], batch["style"], batch["content"])
         fake = self.discriminator(x0_hat.detach(), batch["style"], batch["content"])
@@ -177,12 +177,7 @@ class StyledMotionDiffusion(L.LightningModule):
         sched_g, sched_d = (schedulers, None) if self.discriminator is None else schedulers
 
         x0 = batch["features"]
-        t, noise, x_t = self._noisy(x0)
-        style = self.denoiser.style.drop(batch["style"], h.cond_drop)
-        content = self.denoiser.content.drop(batch["content"], h.cond_drop)
-        out = self.denoiser(x_t, t, style, content)
-        target = self.diffusion.training_target(x0, noise, t)
-        x0_hat = self.diffusion.predict_x0(out, x_t, t)
+        out, target, x0_hat, t = self.denoise(batch, cond_drop=h.cond_drop)
 
         logs: dict[str, torch.Tensor] = {}
         if self.discriminator is not None:
@@ -195,10 +190,10 @@ class StyledMotionDiffusion(L.LightningModule):
             sched_d.step()
             logs |= {f"train/loss_{k}" if k == "d" else f"train/{k}": v for k, v in d_losses.items()}
 
-        losses = self.generator_losses(batch, x0_hat, out, target, t)
+        adversarial = self.discriminator is not None and self.batches_done >= h.adv_warmup_batches
+        losses = self.generator_losses(batch, out, target, x0_hat, t, adversarial)
         self._check_finite(losses)
-        lambdas = {"eps": 1.0, "contact": h.lambda_contact, "root": h.lambda_root, "adv": h.lambda_adv}
-        total = sum(lambdas[k] * v for k, v in losses.items())
+        total = self.total_loss(losses)
         opt_g.zero_grad(set_to_none=True)
         self.manual_backward(total)
         self.clip_gradients(opt_g, gradient_clip_val=h.grad_clip, gradient_clip_algorithm="norm")
@@ -209,24 +204,21 @@ class StyledMotionDiffusion(L.LightningModule):
         logs |= {f"train/loss_{k}": v.detach() for k, v in losses.items()}
         logs["train/loss"] = total.detach()
         logs["train/lr"] = torch.tensor(sched_g.get_last_lr()[0])
-        self.log_dict(logs, prog_bar=False, on_step=True, on_epoch=True, sync_dist=True, batch_size=x0.shape[0])
+        self.log_dict(
+            logs, prog_bar=False, on_step=True, on_epoch=True, sync_dist=True, batch_size=x0.shape[0]
+        )
         self.log("loss", total.detach(), prog_bar=True, on_step=True, on_epoch=False, logger=False)
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         # Fixed noise per batch, so validation losses are comparable across epochs.
         generator = torch.Generator(device=self.device).manual_seed(1000 + batch_idx)
-        x0 = batch["features"]
-        t, noise, x_t = self._noisy(x0, generator)
-        out = self.ema.module(x_t, t, batch["style"], batch["content"])
-        target = self.diffusion.training_target(x0, noise, t)
-        x0_hat = self.diffusion.predict_x0(out, x_t, t)
-        losses = self.generator_losses(batch, x0_hat, out, target, t)
-        losses.pop("adv", None)
+        out, target, x0_hat, t = self.denoise(batch, net=self.ema.module, generator=generator)
+        losses = self.generator_losses(batch, out, target, x0_hat, t, adversarial=False)
         self.log_dict(
             {f"val/loss_{k}": v for k, v in losses.items()} | {"val/loss": losses["eps"]},
             on_epoch=True,
             sync_dist=True,
-            batch_size=x0.shape[0],
+            batch_size=batch["features"].shape[0],
         )
 
     def configure_optimizers(self):

@@ -1,0 +1,50 @@
+"""What every walkdiff LightningModule shares: its data spec, normaliser and skeleton, kept in checkpoints."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+import lightning as L
+
+from walkdiff.data.datamodule import DataSpec
+from walkdiff.errors import WalkdiffError
+from walkdiff.motion.representation import FeatureLayout, Normalizer
+from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+
+
+class MotionModule(L.LightningModule):
+    """Base of the models: a checkpoint alone is enough to decode, export and score their motion.
+
+    The data spec (feature width, joints, labels) arrives from the data module through the CLI link and
+    is saved as a plain dict in the hyperparameters; the normaliser is copied from the data module when
+    training starts and lives in the state dict; the skeleton is stored in the checkpoint.
+    """
+
+    def __init__(self, data_spec: DataSpec | dict | None):
+        super().__init__()
+        if data_spec is None:
+            raise WalkdiffError(
+                "model.data_spec is missing: it is linked from the data module by `walkdiff fit`"
+            )
+        self.spec = data_spec if isinstance(data_spec, dict) else asdict(data_spec)
+        self.layout = FeatureLayout(self.spec["num_joints"])
+        self.normalizer = Normalizer(self.spec["feature_dim"])
+        self.skeleton: Skeleton | None = None
+
+    def setup(self, stage: str) -> None:
+        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if datamodule is None:
+            return
+        datamodule.setup(stage)
+        if stage == "fit":  # a resumed run then loads the same statistics back from its checkpoint
+            self.normalizer.load_state_dict(datamodule.normalizer.state_dict())
+        if self.skeleton is None:
+            self.skeleton = datamodule.skeleton
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.skeleton is not None:
+            checkpoint["skeleton"] = skeleton_to_dict(self.skeleton)
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        if "skeleton" in checkpoint:
+            self.skeleton = skeleton_from_dict(checkpoint["skeleton"])
