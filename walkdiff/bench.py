@@ -8,6 +8,7 @@ import platform
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -187,8 +188,295 @@ def bench_train(
     return result
 
 
+# ---------------------------------------------------------------- sampling
+
+
+def _median_seconds(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def _seam_speeds(model, x: torch.Tensor, overlap: int) -> dict:
+    """Mean joint speed (units/s) at the window seams of long samples against the steps inside windows."""
+    from walkdiff.generation import joint_speeds, seam_steps
+
+    speed = joint_speeds(model, x)
+    seams = seam_steps(x.shape[1], model.spec["window"], overlap)
+    inside = torch.ones(speed.shape[1], dtype=torch.bool)
+    inside[seams] = False
+    quantiles = speed[:, inside].quantile(torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64))
+    return {
+        "seam_mean": round(float(speed[:, seams].mean()), 3),
+        "inside_mean": round(float(speed[:, inside].mean()), 3),
+        "inside_p05_p50_p95": [round(float(q), 3) for q in quantiles],
+    }
+
+
+def _transfer_windows(model, dm, strength: float, keep_trajectory: bool, seed: int):
+    """Every test clip restyled to every other style, cut into windows; plus the root path errors."""
+    from walkdiff.evaluation import WindowSet
+    from walkdiff.generation import Sampling, restyle
+    from walkdiff.motion.representation import decode_root
+
+    window, styles = model.spec["window"], len(model.spec["styles"])
+    walk = list(model.spec["contents"]).index("walk")
+    generator = torch.Generator().manual_seed(seed)
+    raws, targets, sources, errors = [], [], [], []
+    for info, _, features in dm.split_features("test"):
+        if features.shape[0] < window:
+            continue
+        target = torch.tensor([s for s in range(styles) if s != info.style])
+        source = model.normalizer.normalize(torch.from_numpy(features))[None].expand(len(target), -1, -1)
+        content = torch.full_like(target, walk)
+        x = restyle(model, source, target, content, strength, Sampling(), generator, keep_trajectory)
+        raw = model.normalizer.denormalize(x)
+        root_in, root_out = decode_root(torch.from_numpy(features)), decode_root(raw)
+        walked = (root_in[1:, [0, 2]] - root_in[:-1, [0, 2]]).norm(dim=-1).sum()
+        errors += ((root_out - root_in)[..., [0, 2]].norm(dim=-1).mean(-1) / walked).tolist()
+        for start in range(0, raw.shape[1] - window + 1, 4):
+            raws.append(raw[:, start : start + window])
+            targets.append(target)
+            sources.append(torch.full_like(target, info.style))
+    raw = torch.cat(raws)
+    windows = WindowSet(raw, torch.cat(targets), torch.full((len(raw),), walk), torch.full((len(raw),), -1))
+    return windows, torch.cat(sources), errors
+
+
+def _plot_quality(path: Path, rows: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
+    for ax, key, label in (
+        (axes[0], "fmd", "FMD (lower is better)"),
+        (axes[1], "style_acc", "style accuracy"),
+    ):
+        ddim = [r for r in rows if r["sampler"] == "ddim"]
+        ax.plot([r["steps"] for r in ddim], [r[key] for r in ddim], "o-", label="DDIM (eta 0)")
+        for r in rows:
+            if r["sampler"] == "ddpm":
+                ax.plot([r["steps"]], [r[key]], "s", color="C3", label="DDPM")
+        ax.set_xscale("log")
+        ax.set_xlabel("denoising steps")
+        ax.set_title(label)
+        ax.legend()
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def bench_sample(
+    out: str,
+    ckpt: str,
+    evaluator: str,
+    num: int = 400,
+    seed: int = 0,
+    ddim_steps: tuple[int, ...] = (50, 20, 10, 5),
+    batch_size: int = 32,
+    repeats: int = 3,
+    strength: float = 0.6,
+) -> dict:
+    """Quality against steps, speed, foot clean-up and transfer of a StyledMotionDiffusion checkpoint.
+
+    Writes OUT/sample.json and OUT/sample.png. Quality: FMD and recognition against the real test
+    windows (evaluation.py's scorer) of `num` windows balanced over styles, DDPM over all T steps and DDIM
+    over each of `ddim_steps`, all from one seed.
+    """
+    from walkdiff.data.datamodule import MotionDataModule
+    from walkdiff.data.datasets import dataset_module
+    from walkdiff.evaluation import (
+        MotionScorer,
+        data_settings,
+        generate_windows,
+        load_evaluator,
+        window_set,
+    )
+    from walkdiff.footfix import fix_feet_features
+    from walkdiff.generation import Sampling, default_overlap, generate_long, load_generator
+
+    model = load_generator(ckpt)
+    dm = MotionDataModule(**data_settings(torch.load(ckpt, map_location="cpu", weights_only=False)))
+    spec = model.spec
+    scorer = MotionScorer(load_evaluator(evaluator), model.skeleton, spec["fps"])
+    reference = scorer.embed(window_set(dm.split_features("test"), spec["window"]))
+    scorer.set_reference(reference)
+    content_ids = [list(spec["contents"]).index(name) for name in dm.selection.names]
+    keys = ("fmd", "style_acc", "content_acc", "diversity", "skate_ratio", "slide_speed", "jitter")
+
+    def scored(windows) -> dict:
+        values = scorer.score(scorer.embed(windows), seed=seed)
+        return {k: round(values[k], 4) for k in keys}
+
+    quality, generated = [], {}
+    configs = [("ddpm", model.diffusion.num_timesteps)]
+    configs += [("ddim", k) for k in ddim_steps]
+    for sampler, steps in configs:
+        generator = torch.Generator().manual_seed(seed)
+        start = time.perf_counter()
+        windows = generate_windows(
+            model, num, content_ids, generator, batch_size=num, sampler=sampler, steps=steps
+        )
+        elapsed = time.perf_counter() - start
+        generated[sampler, steps] = windows
+        quality.append({"sampler": sampler, "steps": steps, **scored(windows), "seconds": round(elapsed, 2)})
+        print(f"{sampler}-{steps}: {quality[-1]}", flush=True)
+    # What a second seed alone changes: the noise floor of these numbers.
+    windows = generate_windows(model, num, content_ids, torch.Generator().manual_seed(seed + 1), num)
+    ddpm_other_seed = scored(windows)
+    real = scored(
+        reference.take(torch.randperm(len(reference), generator=torch.Generator().manual_seed(seed))[:num])
+    )
+
+    # Foot clean-up on the DDPM windows, scored the same way.
+    ddpm = generated["ddpm", configs[0][1]]
+    contacts = dataset_module(spec["dataset"]).CONTACTS
+    fixed_raw = torch.from_numpy(fix_feet_features(ddpm.raw.numpy(), model.skeleton, spec["fps"], contacts))
+    fix_feet = {"before": quality[0], "after": scored(replace(ddpm, raw=fixed_raw))}
+
+    # Speed: batch of windows with DDIM-10, per-step cost against one network pass, batch-1 latency.
+    torch.manual_seed(seed)
+    style = torch.arange(batch_size) % len(spec["styles"])
+    content = torch.full((batch_size,), content_ids[0])
+    window, dim = spec["window"], spec["feature_dim"]
+
+    def ddim10():
+        model.generate(style, content, sampler="ddim", steps=10)
+
+    ddim10()  # warm-up
+    batch_s = _median_seconds(ddim10, repeats)
+    net, x = model.ema.module.eval(), torch.randn(batch_size, window, dim)
+    t = torch.full((batch_size,), 50)
+    with torch.no_grad():
+        forward_s = _median_seconds(lambda: [net(x, t, style, content) for _ in range(10)], repeats) / 10
+    long_frames = 300
+    overlap = default_overlap(window)
+    long_x = generate_long(model, style, content, long_frames, Sampling("ddim", 10))
+    long_s = _median_seconds(
+        lambda: generate_long(model, style, content, long_frames, Sampling("ddim", 10)), 1
+    )
+    two_seconds = round(2 * spec["fps"])
+    latency = {
+        name: round(
+            _median_seconds(
+                lambda s=s: generate_long(model, style[:1], content[:1], two_seconds, s), repeats
+            ),
+            3,
+        )
+        for name, s in (("ddim10_s", Sampling("ddim", 10)), ("ddpm_s", Sampling()))
+    }
+    speed = {
+        "batch": batch_size,
+        "ddim10_window_frames_per_s": round(batch_size * window / batch_s, 1),
+        "ddim10_long_frames_per_s": round(batch_size * long_frames / long_s, 1),
+        "step_s": round(batch_s / 10, 5),
+        "forward_s": round(forward_s, 5),
+        "step_over_forward": round(batch_s / 10 / forward_s, 3),
+        f"batch1_latency_{two_seconds}_frames": latency,
+    }
+    ddpm_long = generate_long(
+        model, style, content, long_frames, Sampling(), torch.Generator().manual_seed(seed)
+    )
+    seams = {"ddim10": _seam_speeds(model, long_x, overlap), "ddpm": _seam_speeds(model, ddpm_long, overlap)}
+
+    # Transfer: every walking test clip to every other style, noised to `strength`, DDPM from there.
+    transfer = {"strength": strength, "real_test_style_acc": real["style_acc"]}
+    for keep in (False, True):
+        windows, source_style, errors = _transfer_windows(model, dm, strength, keep, seed)
+        values = scored(windows)
+        embedded = scorer.embed(windows)
+        transfer["keep_trajectory" if keep else "free"] = {
+            "windows": len(windows),
+            "target_style_acc": values["style_acc"],
+            "target_over_real": round(values["style_acc"] / real["style_acc"], 3),
+            "still_source_style": round(
+                float((embedded.style_logits.argmax(-1) == source_style).float().mean()), 4
+            ),
+            "content_acc_walk": values["content_acc"],
+            "root_path_error_relative_mean": statistics.mean(errors),
+            "root_path_error_relative_max": max(errors),
+            "fmd": values["fmd"],
+        }
+
+    result = {
+        "benchmark": "sample",
+        "ckpt": ckpt,
+        "evaluator": evaluator,
+        "num": num,
+        "seed": seed,
+        "quality": quality,
+        "ddpm_other_seed": ddpm_other_seed,
+        "real_test": real,
+        "fix_feet": fix_feet,
+        "speed": speed,
+        "seams_300_frames": seams,
+        "transfer": transfer,
+        "machine": machine(),
+    }
+    out_dir = Path(out)
+    write_json(out_dir / "sample.json", result)
+    _plot_quality(out_dir / "sample.png", quality)
+    return result
+
+
+def _gesture_models(ckpt: str | None) -> dict:
+    """DiffMotion at N = 100 (the checkpoint, or untrained) and N = 500 (same network, untrained).
+
+    Speed depends on the architecture and N only, so untrained weights time the same as trained ones.
+    """
+    from walkdiff.models.diffmotion import DiffMotion
+
+    if ckpt is None:
+        spec = dict(
+            dataset="zeggs", feature_dim=45, num_joints=15, window=120, fps=20.0,
+            joints=tuple(map(str, range(15))), rotation="expmap", audio_dim=27, past=10, lookahead=20,
+        )  # fmt: skip
+        base = DiffMotion(spec)
+    else:
+        from walkdiff.gesture import load_model
+
+        base = load_model(ckpt)
+    options = {k: v for k, v in base.hparams.items() if k != "data_spec"}
+    models = {base.diffusion.num_timesteps: base}
+    for n in (100, 500):
+        models.setdefault(n, DiffMotion(base.spec, **options | {"timesteps": n}))
+    return models
+
+
+def bench_gesture(out: str, ckpt: str | None = None, frames: int = 40, repeats: int = 3) -> dict:
+    """DiffMotion generation speed: seconds per frame of one stream at N = 100 and 500, 16 streams batched."""
+    models = _gesture_models(ckpt)
+    audio = torch.randn(frames, models[100].spec["audio_dim"])
+    result = {"benchmark": "gesture", "checkpoint": ckpt, "frames_timed": frames, "repeats": repeats}
+    for n, model in models.items():
+        model.eval()
+        model.generate(audio[:3])  # warm-up
+        one = _median_seconds(lambda model=model: model.generate(audio), repeats)
+        result[f"seconds_per_frame_1_stream_N{n}"] = round(one / frames, 4)
+        result[f"realtime_factor_N{n}"] = round(1 / model.spec["fps"] / (one / frames), 2)
+    batched = _median_seconds(lambda: models[100].generate(audio, streams=16), repeats)
+    result["frames_per_second_16_streams_N100"] = round(16 * frames / batched, 1)
+    result["target_seconds_per_frame_N100"] = 0.05
+    result["machine"] = machine()
+    write_json(out, result)
+    return result
+
+
 def run(args) -> None:
     if args.what == "data":
         bench_data(args.out, args.dataset, args.root)
     elif args.what == "train":
         bench_train(args.out, args.config, args.batches)
+    elif args.what == "sample":
+        bench_sample(
+            args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, strength=args.strength
+        )
+    elif args.what == "gesture":
+        bench_gesture(args.out, args.ckpt, args.frames)

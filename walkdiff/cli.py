@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 from walkdiff.errors import WalkdiffError
@@ -14,7 +15,6 @@ def lightning_cli(args: list[str] | None) -> None:
     """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`."""
     from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
-    from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.tracking import check_tracking_uri
 
     class LogConfigToMLflow(SaveConfigCallback):
@@ -48,7 +48,7 @@ def lightning_cli(args: list[str] | None) -> None:
 
     WalkdiffCLI(
         L.LightningModule,
-        MotionDataModule,
+        L.LightningDataModule,  # MotionDataModule (walking) or SpeechDataModule (gestures), per config
         subclass_mode_model=True,
         subclass_mode_data=True,
         save_config_callback=LogConfigToMLflow,
@@ -102,6 +102,55 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="auto", help="auto, cpu or cuda")
     p.add_argument("--mlflow-experiment", default=None, help="log metrics and reports into an MLflow run")
 
+    def sampling_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+        p.add_argument("--out", required=True, help="output folder")
+        p.add_argument("--style", required=True, help="a style, or a mix: angry:0.7,old:0.3")
+        p.add_argument("--content", default="walk", help="content group (default walk)")
+        p.add_argument("--seed", type=int, default=0)
+        p.add_argument("--sampler", choices=("ddpm", "ddim"), default="ddpm")
+        p.add_argument("--steps", type=int, default=None, help="DDIM steps (default 10)")
+        p.add_argument("--eta", type=float, default=0.0, help="DDIM noise (0: deterministic)")
+        p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance (1: none)")
+        p.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows")
+        p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
+        p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
+        p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+        p.add_argument("--device", default="cpu", help="cpu or cuda")
+
+    p = sub.add_parser("sample", help="generate styled motion of any length: BVH + GIF + manifest.json")
+    sampling_options(p)
+    p.add_argument("--num", type=int, default=8, help="clips (default 8)")
+    p.add_argument("--frames", type=int, default=300, help="frames per clip at the model's fps (default 300)")
+
+    p = sub.add_parser("transfer", help="restyle a BVH clip (noise to strength*T, denoise in the new style)")
+    sampling_options(p)
+    p.add_argument("--input", required=True, help="BVH clip on the model's skeleton (any frame rate)")
+    p.add_argument("--strength", type=float, default=0.6, help="noise level in (0, 1] (default 0.6)")
+    p.add_argument("--keep-trajectory", action="store_true", help="keep the source's root path exactly")
+
+    p = sub.add_parser("gesture", help="speech-driven gestures from a WAV with DiffMotion: BVH + GIF")
+    p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
+    p.add_argument("--audio", required=True, help="speech WAV (any rate; resampled as needed)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
+    p.add_argument("--streams", type=int, default=1, help="samples generated together (default 1)")
+
+    # Its own verb: `evaluate` is the walking protocol (an evaluator network, FMD, style accuracy);
+    # none of its options apply to gestures, which are scored against the held-out motion itself.
+    p = sub.add_parser(
+        "evaluate-gesture",
+        help="DiffMotion on the held-out 20%% of each take: L1, PCK, beats, diversity, jerk",
+    )
+    p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
+    p.add_argument("--out", required=True, help="folder for report.json and per-take BVH/GIF")
+    p.add_argument("--samples", type=int, default=5, help="samples of each take's audio (default 5)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--clip-seconds", type=float, default=2.0, help="diversity clip length (default 2 s)")
+    p.add_argument("--pck-threshold", type=float, default=10.0, help="PCK distance (default 10 units)")
+    p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
+
     p = sub.add_parser("bench", help="benchmarks; results written as JSON")
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     b = bench.add_parser("data", help="cold/warm preprocessing of the dataset and DataLoader throughput")
@@ -112,6 +161,19 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True)
     b.add_argument("--config", default="conf/xia_cpu.yaml")
     b.add_argument("--batches", type=int, default=30, help="batches timed per repeat")
+    b = bench.add_parser("gesture", help="DiffMotion seconds per frame (1 stream, N=100/500), 16 streams")
+    b.add_argument("--out", required=True)
+    b.add_argument(
+        "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
+    )
+    b.add_argument("--frames", type=int, default=40, help="frames timed per setting (default 40)")
+    b = bench.add_parser("sample", help="FMD/style accuracy vs sampling steps, speed, --fix-feet, transfer")
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    b.add_argument("--out", required=True, help="folder for sample.json and sample.png")
+    b.add_argument("--num", type=int, default=400, help="windows per sampler setting (default 400)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--strength", type=float, default=0.6, help="transfer noise level (default 0.6)")
     return parser
 
 
@@ -151,6 +213,23 @@ def run_command(args: argparse.Namespace) -> int:
         del options["command"]
         report = evaluate(**options)
         print(f"wrote {args.out}/report.json and report.md in {report['elapsed_s']} s")
+    elif args.command in ("sample", "transfer"):
+        from walkdiff import generation
+
+        options = vars(args).copy()
+        del options["command"]
+        report = getattr(generation, args.command)(**options)
+        print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in report["timing"].items()))
+    elif args.command in ("gesture", "evaluate-gesture"):
+        from walkdiff import gesture
+
+        options = vars(args).copy()
+        del options["command"]
+        if args.command == "gesture":
+            print(json.dumps(gesture.gesture(**options), indent=2))
+        else:
+            gesture.evaluate_gesture(**options)
+            print(f"wrote {args.out}/report.json")
     elif args.command == "bench":
         from walkdiff import bench
 

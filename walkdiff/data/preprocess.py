@@ -80,7 +80,7 @@ def preprocess(
 ) -> ProcessedClips:
     if on_error not in ("fail", "skip"):
         raise WalkdiffError(f"data.on_error: expected 'fail' or 'skip', got {on_error!r}")
-    settings = {"fps": fps, "mirror": mirror, "on_error": on_error}
+    settings = {"fps": float(fps), "mirror": bool(mirror), "on_error": on_error}  # 20 and 20.0: one key
     cache_file = Path(cache_dir) / f"{dataset}-{cache_key(dataset, clips, settings)}.npz"
     if cache_file.exists():
         return _load(cache_file, mirror)

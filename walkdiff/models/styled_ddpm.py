@@ -1,7 +1,7 @@
 """The styled walking GAN-DDPM (Findlay et al., MIG 2023) as a LightningModule with manual optimization.
 
 Loss of the generator (the denoiser), per batch:
-    L = ||target - net(x_t, t, c, s)||^2
+    L = ||target - net(x_t, t, c, s)||^2                          (target: eps, x0 or v; the paper: eps)
         + lambda_contact * w_t * ||contacts(x0_hat) - contacts(x0)||^2
         + lambda_root    * w_t * ||root(x0_hat) - root(x0)||^2   (root integrated from velocities)
         + lambda_adv     * w_t * 1/2 (D(x0_hat) - 1)^2                (LSGAN)
@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from walkdiff.data.datamodule import DataSpec
-from walkdiff.diffusion import GaussianDiffusion, ddim_sample, ddpm_sample, guided_batched
+from walkdiff.diffusion import GaussianDiffusion, ddim_sample, ddpm_sample, guided, guided_batched
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
@@ -131,7 +131,7 @@ class StyledMotionDiffusion(MotionModule):
         contact_hat, root_hat = self._geometry(x0_hat)
         contact, root = self._geometry(x0)
         losses = {
-            "eps": F.mse_loss(out, target),
+            "diffusion": F.mse_loss(out, target),
             "contact": (weight * (contact_hat - contact).pow(2).mean(dim=(1, 2))).mean(),
             "root": (weight * (root_hat - root).pow(2).mean(dim=(1, 2))).mean(),
         }
@@ -142,7 +142,7 @@ class StyledMotionDiffusion(MotionModule):
 
     def total_loss(self, losses: dict[str, torch.Tensor]) -> torch.Tensor:
         h = self.hparams
-        lambdas = {"eps": 1.0, "contact": h.lambda_contact, "root": h.lambda_root, "adv": h.lambda_adv}
+        lambdas = {"diffusion": 1.0, "contact": h.lambda_contact, "root": h.lambda_root, "adv": h.lambda_adv}
         return sum(lambdas[k] * v for k, v in losses.items())
 
     def discriminator_loss(
@@ -215,7 +215,7 @@ class StyledMotionDiffusion(MotionModule):
         out, target, x0_hat, t = self.denoise(batch, net=self.ema.module, generator=generator)
         losses = self.generator_losses(batch, out, target, x0_hat, t, adversarial=False)
         self.log_dict(
-            {f"val/loss_{k}": v for k, v in losses.items()} | {"val/loss": losses["eps"]},
+            {f"val/loss_{k}": v for k, v in losses.items()} | {"val/loss": losses["diffusion"]},
             on_epoch=True,
             sync_dist=True,
             batch_size=batch["features"].shape[0],
@@ -270,27 +270,33 @@ class StyledMotionDiffusion(MotionModule):
         `style` holds ids (B,) or mixing weights (B, styles); `guidance` W = 1 is plain conditional
         sampling, W > 1 pushes towards the requested labels (classifier-free guidance).
         """
-        net = self.ema.module.eval()
         frames = frames or self.spec["window"]
         shape = (style.shape[0], frames, self.spec["feature_dim"])
-        if guidance == 1.0:
-
-            def model_fn(x, t):
-                return net(x, t, style, content)
-        else:
-            null_style = torch.full((style.shape[0],), net.style.null_id, device=self.device)
-            if style.is_floating_point():
-                null_style = F.one_hot(null_style, net.style.num_classes + 1)[:, :-1].float() * 0
-            null_content = torch.full_like(content, net.content.null_id)
-            pair_style = torch.cat([style, null_style])
-            pair_content = torch.cat([content, null_content])
-            model_fn = guided_batched(lambda x, t: net(x, t, pair_style, pair_content), guidance)
+        model_fn = self.model_fn(style, content, guidance)
         common = dict(generator=generator, progress=progress, inpaint=inpaint)
         if sampler == "ddpm":
             return ddpm_sample(model_fn, self.diffusion, shape, **common)
         if sampler == "ddim":
             return ddim_sample(model_fn, self.diffusion, shape, steps or 10, eta, **common)
         raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm or ddim")
+
+    def model_fn(self, style: torch.Tensor, content: torch.Tensor, guidance: float = 1.0):
+        """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance."""
+        net = self.ema.module.eval()
+        if guidance == 1.0:
+            return lambda x, t: net(x, t, style, content)
+        null_style = torch.full((style.shape[0],), net.style.null_id, device=self.device)
+        null_content = torch.full_like(content, net.content.null_id)
+        if style.is_floating_point():
+            # Mixing weights and the null id (the unconditional pass) cannot share one batch tensor.
+            return guided(
+                lambda x, t: net(x, t, style, content),
+                lambda x, t: net(x, t, null_style, null_content),
+                guidance,
+            )
+        pair_style = torch.cat([style, null_style])
+        pair_content = torch.cat([content, null_content])
+        return guided_batched(lambda x, t: net(x, t, pair_style, pair_content), guidance)
 
     def to_raw(self, x: torch.Tensor) -> np.ndarray:
         """Normalised features -> features in data units (numpy), ready for representation.decode."""

@@ -1,0 +1,199 @@
+"""DiffMotion: training steps, incremental batched generation, smoothing, gesture metrics and the commands."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from test_speech import write_take
+
+from walkdiff.cli import main
+from walkdiff.data.speech import SpeechDataModule
+from walkdiff.errors import WalkdiffError
+from walkdiff.gesture import (
+    beat_consistency,
+    diversity,
+    l1_distance,
+    load_model,
+    mean_jerk,
+    motion_beats,
+    pck,
+    shift_beats,
+)
+from walkdiff.models.diffmotion import DiffMotion
+from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.filters import savgol
+
+TINY = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=10)
+
+
+@pytest.fixture(autouse=True)
+def plain_argv(monkeypatch):
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> tuple[Path, Path]:
+    """A tiny model fitted for a few steps on two synthetic takes; (checkpoint, takes folder)."""
+    folder = tmp_path_factory.mktemp("speech") / "takes"
+    write_take(folder, "a", 10.0, seed=1)
+    write_take(folder, "b", 8.0, seed=2)
+    torch.manual_seed(0)
+    dm = SpeechDataModule(str(folder), window=40, stride=10, past=5, lookahead=8, batch_size=4)
+    model = DiffMotion(dm.spec, **TINY, lr=3e-3)
+    trainer = L.Trainer(
+        accelerator="cpu", max_steps=6, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
+    )  # fmt: skip
+    before = model.eps_net.output.weight.detach().clone()
+    trainer.fit(model, dm)
+    assert not torch.equal(before, model.eps_net.output.weight), "training did not update the eps network"
+    assert np.isfinite(float(trainer.callback_metrics["train/loss"]))
+    ckpt = folder.parent / "tiny.ckpt"
+    trainer.save_checkpoint(ckpt)
+    return ckpt, folder
+
+
+def test_training_loss_falls_on_one_batch():
+    torch.manual_seed(0)
+    spec = dict(
+        dataset="t", feature_dim=6, num_joints=2, window=20, fps=20.0, joints=("a", "b"), rotation="expmap",
+        audio_dim=4, past=2, lookahead=3,
+    )  # fmt: skip
+    model = DiffMotion(spec, **TINY, dropout=0.0)
+    t = torch.linspace(0, 6, 20)
+    poses = torch.stack([torch.sin(t * (k + 1)) for k in range(6)], dim=-1).expand(8, 20, 6)
+    batch = {"poses": poses, "audio": torch.randn(8, 25, 4)}
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    torch.manual_seed(1)
+    first = model.loss(batch).item()
+    for _ in range(150):
+        opt.zero_grad()
+        model.loss(batch).backward()
+        opt.step()
+    torch.manual_seed(1)
+    assert model.loss(batch).item() < 0.8 * first  # eps-loss falls slowly: small-noise steps are hard
+
+
+def test_checkpoint_keeps_skeleton_and_neutral_pose(trained):
+    model = load_model(trained[0])
+    assert model.skeleton.num_joints == 13 and model.neutral.rotations.shape == (13, 3, 3)
+    assert tuple(model.spec["joints"]) == ("Spine", "Head")
+    assert float(model.audio_normalizer.std.mean()) != 1.0  # the training audio statistics came along
+
+
+def test_generation_is_incremental_batched_and_seeded(trained):
+    model = load_model(trained[0])
+    audio = torch.randn(30, 27)
+    one = model.generate(audio, torch.Generator().manual_seed(3), streams=3)
+    assert one.shape == (3, 30, 6) and torch.isfinite(one).all()
+    assert not torch.allclose(one[0], one[1])  # streams differ
+    again = model.generate(audio, torch.Generator().manual_seed(3), streams=3)
+    torch.testing.assert_close(one, again)
+    # Frame t depends only on audio up to t + lookahead: a shorter audio gives the same first frames.
+    short = model.generate(audio[:20], torch.Generator().manual_seed(3), streams=3)
+    torch.testing.assert_close(short[:, : 20 - 8], one[:, : 20 - 8])
+
+
+def test_savgol_reduces_jerk_and_keeps_length():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 4, 80)
+    clean = np.stack([np.sin(t), np.cos(2 * t), t], axis=-1)[:, None, :].repeat(2, axis=1)  # (F, J, 3)
+    noisy = clean + rng.normal(0, 0.05, clean.shape)
+    smooth = savgol(noisy)
+    assert smooth.shape == noisy.shape
+    assert mean_jerk(smooth, 20.0) < 0.2 * mean_jerk(noisy, 20.0)
+    assert np.abs(smooth - clean).mean() < np.abs(noisy - clean).mean()
+    assert savgol(noisy[:11]).shape == noisy[:11].shape  # shorter than the window
+    np.testing.assert_array_equal(savgol(noisy[:4]), noisy[:4])  # too short to fit order 4
+    with pytest.raises(WalkdiffError, match="odd"):
+        savgol(noisy, window=30)
+
+
+def test_metrics_on_known_inputs():
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(50, 4, 3))
+    assert l1_distance(truth, truth) == 0.0 and pck(truth, truth, 0.1) == 1.0
+    shifted = truth + np.array([1.0, -2.0, 0.5])
+    assert l1_distance(shifted, truth) == pytest.approx(3.5)
+    assert pck(shifted, truth, 2.0) == 0.0 and pck(shifted, truth, 3.0) == 1.0
+
+    onsets = np.array([0.5, 1.5, 2.5])
+    assert beat_consistency(onsets, onsets) == pytest.approx(1.0)
+    assert beat_consistency(onsets + 0.1, onsets) == pytest.approx(np.exp(-0.5))
+    assert beat_consistency(np.array([1.0]), onsets) < 0.01
+    assert beat_consistency(np.array([]), onsets) == 0.0
+    np.testing.assert_allclose(shift_beats(np.array([0.5, 2.5]), 2.0, 3.0), [1.5, 2.5])
+
+    # A joint whose speed 1 - cos(pi (t - 0.025)) stops once inside the clip, at 2.025 s (between frames).
+    fps, t = 20.0, np.arange(81) / 20.0
+    x = t - np.sin(np.pi * (t - 0.025)) / np.pi
+    positions = np.stack([x, 0 * x, 0 * x], axis=-1)[:, None]
+    np.testing.assert_allclose(motion_beats(positions, fps), [2.025], atol=1e-9)
+
+    same = np.repeat(truth[None], 3, axis=0)
+    assert diversity(same, 10) > 0  # different clips of one sample still differ
+    still = np.repeat(truth[:1][None], 3, axis=0).repeat(50, axis=1)
+    assert diversity(still, 10) == 0.0
+    with pytest.raises(WalkdiffError):
+        diversity(truth[None, :5], 10)
+
+
+def test_gesture_command_writes_bvh_on_the_full_skeleton(trained, tmp_path):
+    ckpt, folder = trained
+    out = tmp_path / "out"
+    assert main(["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "b.wav"), "--out", str(out),
+                 "--smooth", "--streams", "2", "--seed", "4"]) == 0  # fmt: skip
+    bvhs = sorted(out.glob("b_*.bvh"))
+    assert len(bvhs) == 2 and (out / "b.gif").stat().st_size > 0
+    motion = read_bvh(bvhs[0])
+    assert motion.skeleton.num_joints == 13 and motion.num_frames == 161 and motion.fps == pytest.approx(20)
+
+
+def test_evaluate_gesture_report(trained, tmp_path):
+    ckpt, _ = trained
+    assert main(["evaluate-gesture", "--ckpt", str(ckpt), "--out", str(tmp_path), "--samples", "2"]) == 0
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert [row["take"] for row in report["takes"]] == ["a", "b"]
+    row = report["takes"][0]
+    assert row["frames"] == 40 and row["onsets"] > 0
+    for name in ("generated", "smoothed"):
+        assert row[name]["l1"] > 0 and 0 <= row[name]["pck"] <= 1 and row[name]["diversity"] > 0
+        assert 0 <= row[name]["bc"] <= 1 and 0 <= row[name]["bc_shifted"] <= 1
+    assert row["smoothed"]["jerk"] < row["generated"]["jerk"]
+    assert (tmp_path / "a" / "a.gif").is_file()
+
+
+def test_missing_checkpoint_is_a_clear_error(tmp_path, capsys):
+    assert (
+        main(["gesture", "--ckpt", str(tmp_path / "no.ckpt"), "--audio", "x.wav", "--out", str(tmp_path)])
+        == 1
+    )
+    assert "checkpoint not found" in capsys.readouterr().err
+
+
+def test_config_trains_through_the_cli(trained, tmp_path, monkeypatch):
+    """conf/diffmotion_zeggs.yaml as shipped (checkpoints, sample callback), on synthetic takes."""
+    config = Path(__file__).parents[1] / "conf" / "diffmotion_zeggs.yaml"
+    monkeypatch.chdir(tmp_path)  # the config's relative checkpoint folder lands here
+    args = ["fit", "--config", str(config), "--data.dataset", str(trained[1]), "--data.window", "40",
+            "--data.batch_size", "4", "--model.hidden", "32", "--model.timesteps", "10",
+            "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2",
+            "--trainer.logger", "false", "--trainer.enable_progress_bar", "false"]  # fmt: skip
+    assert main(args) == 0
+    model = load_model(tmp_path / "checkpoints" / "diffmotion_zeggs" / "last.ckpt")
+    assert model.hparams.hidden == 32 and model.spec["window"] == 40
+
+
+def test_sample_callback_writes_held_out_audio_clips(trained, tmp_path):
+    from walkdiff.gesture import GestureSamples
+
+    model = load_model(trained[0])
+    dm = SpeechDataModule(str(trained[1]), window=40, past=5, lookahead=8)
+    files = GestureSamples(seconds=1.0).write(model, dm, None, "samples/epoch_0001", folder=tmp_path)
+    assert [f.name for f in files] == ["a.bvh", "a.gif"]
+    assert read_bvh(files[0]).num_frames == 20

@@ -1,0 +1,143 @@
+"""Foot clean-up: two-bone IK, pinning on synthetic sliding feet, and skating cut on real Xia clips."""
+
+from __future__ import annotations
+
+import numpy as np
+import synthetic
+import torch
+
+from walkdiff.data.xia import CONTACTS
+from walkdiff.footfix import ankle_offsets, contact_runs, fix_feet, fix_feet_features, two_bone_ik
+from walkdiff.metrics.physics import FootSkating
+from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.representation import FeatureLayout, encode, features_to_positions
+from walkdiff.motion.resample import resample
+from walkdiff.motion.skeleton import Motion
+
+
+def test_contact_runs_and_offsets_fade_out():
+    assert contact_runs(np.array([0, 1, 1, 0, 0, 1], dtype=bool)) == [(1, 3), (5, 6)]
+    assert contact_runs(np.zeros(4, dtype=bool)) == []
+    heel = np.zeros((12, 3))
+    heel[:, 0] = np.arange(12.0)  # slides 1 unit per frame along x
+    contacts = np.zeros((12, 2))
+    contacts[4:7, 0] = 1  # heel down on frames 4-6: pinned at x = 5
+    offset = ankle_offsets(heel, heel.copy(), contacts, blend=2)
+    np.testing.assert_allclose((heel + offset)[4:7, 0], 5.0)
+    np.testing.assert_allclose(offset[:, 1], 0.0)  # heights are left alone
+    # One frame before and after: 2/3 of the neighbouring offset; three frames away: none.
+    np.testing.assert_allclose(offset[[3, 7], 0], [2 / 3 * 1.0, 2 / 3 * -1.0])
+    assert not offset[:2].any() and not offset[9:].any()
+
+
+def test_two_bone_ik_reaches_targets_and_straightens_out_of_reach():
+    motion = synthetic.walking(40, fps=30.0)
+    sk = motion.skeleton
+    ankle = sk.index("LeftFoot")
+    world = motion_world_positions(motion)
+    hip = world[:, sk.index("LeftUpLeg")]
+    rng = np.random.default_rng(0)
+    # Within reach (the synthetic legs are often straight: the knee has to bend from there).
+    near = hip + 0.85 * (world[:, ankle] - hip) + rng.uniform(-0.5, 0.5, (40, 3))
+    far = hip + (world[:, ankle] - hip) * 3.0  # three leg lengths away
+    for targets, reachable in ((near, True), (far, False)):
+        rotations = two_bone_ik(
+            motion.rotations, motion.positions, sk.parents, ankle, targets, np.ones(40, bool)
+        )
+        np.testing.assert_allclose(
+            rotations @ rotations.swapaxes(-1, -2), np.broadcast_to(np.eye(3), rotations.shape), atol=1e-9
+        )
+        fixed = motion_world_positions(Motion(sk, rotations, motion.positions, motion.frame_time))
+        if reachable:
+            np.testing.assert_allclose(fixed[:, ankle], targets, atol=1e-6)
+        else:  # pointing at the target, fully stretched
+            direction = (fixed[:, ankle] - hip) / np.linalg.norm(
+                fixed[:, ankle] - hip, axis=-1, keepdims=True
+            )
+            wanted = (targets - hip) / np.linalg.norm(targets - hip, axis=-1, keepdims=True)
+            np.testing.assert_allclose(direction, wanted, atol=1e-6)
+        # The foot keeps its world orientation, the other leg and the upper body do not move.
+        untouched = [sk.index(n) for n in ("Hips", "RightFoot", "RightToeBase", "Spine", "Head")]
+        np.testing.assert_allclose(fixed[:, untouched], world[:, untouched], atol=1e-9)
+
+
+def test_sliding_synthetic_feet_are_pinned_and_the_rest_is_untouched():
+    motion = synthetic.walking(90, fps=30.0)  # feet swing while the root glides: they slide in any "contact"
+    sk = motion.skeleton
+    contacts = np.zeros((90, 4))
+    contacts[20:30, 0:2] = 1  # left heel and toe down for a third of a second
+    contacts[50:58, 3] = 1  # right toe only
+    fixed = fix_feet(motion, contacts, CONTACTS)
+    before, after = motion_world_positions(motion), motion_world_positions(fixed)
+    for joint, frames in (
+        ("LeftFoot", slice(20, 30)),
+        ("LeftToeBase", slice(20, 30)),
+        ("RightToeBase", slice(50, 58)),
+    ):
+        j = sk.index(joint)
+        slide_before = np.linalg.norm(np.diff(before[frames, j][:, [0, 2]], axis=0), axis=1).max()
+        slide_after = np.linalg.norm(np.diff(after[frames, j][:, [0, 2]], axis=0), axis=1).max()
+        assert slide_before > 0.1 and slide_after < 0.05 * slide_before, joint
+    np.testing.assert_array_equal(fixed.positions, motion.positions)  # the root and bone offsets
+    upper = [sk.index(n) for n in ("Spine", "Head")]
+    np.testing.assert_array_equal(fixed.rotations[:, upper], motion.rotations[:, upper])
+    # Far from any contact nothing changes; bone lengths are kept everywhere.
+    np.testing.assert_array_equal(fixed.rotations[:10], motion.rotations[:10])
+    bones = lambda w: np.linalg.norm(w[:, 1:] - w[:, sk.parents[1:]], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(bones(after), bones(before), atol=1e-9)
+
+
+def skating(positions: torch.Tensor, contacts: torch.Tensor, skeleton) -> dict[str, float]:
+    metric = FootSkating([skeleton.index(n) for n in CONTACTS.joints], 30.0, CONTACTS.speed_threshold)
+    metric.update(positions, contacts)
+    return {k: float(v) for k, v in metric.compute().items()}
+
+
+def test_fix_feet_halves_skating_on_real_clips_with_artificial_slide(xia_dir):
+    names = ["neutral_01_000", "old_07_000", "angry_01_000", "sexy_02_000"]
+    rows = []
+    for k, name in enumerate(names):
+        motion = resample(read_bvh(xia_dir / f"{name}.bvh"), 30.0)
+        contacts = encode(motion, CONTACTS)[:, -4:]
+        time = np.arange(motion.num_frames) / 30.0
+        slid = Motion(motion.skeleton, motion.rotations, motion.positions.copy(), motion.frame_time)
+        slid.positions[:, 0, 0] += 1.0 * np.sin(
+            2 * np.pi * 1.3 * time + k
+        )  # the body sways over planted feet
+        slid.positions[:, 0, 2] += 0.8 * np.sin(2 * np.pi * 0.9 * time)
+        rows.append((motion, slid, fix_feet(slid, contacts, CONTACTS), contacts))
+    sk = rows[0][0].skeleton
+
+    def score(i: int) -> dict[str, float]:
+        positions = [torch.from_numpy(motion_world_positions(r[i]))[None] for r in rows]
+        metric = FootSkating([sk.index(n) for n in CONTACTS.joints], 30.0, CONTACTS.speed_threshold)
+        for p, r in zip(positions, rows):
+            metric.update(p, torch.from_numpy(r[3])[None])
+        return {k: float(v) for k, v in metric.compute().items()}
+
+    real, slid, fixed = score(0), score(1), score(2)
+    assert slid["slide_speed"] > 4 * real["slide_speed"] and slid["skate_ratio"] > 0.3
+    assert (
+        fixed["slide_speed"] < 0.5 * slid["slide_speed"] and fixed["skate_ratio"] < 0.5 * slid["skate_ratio"]
+    )
+    assert fixed["slide_speed"] < 2 * real["slide_speed"] + 0.2
+
+
+def test_fix_feet_features_changes_only_rotations(xia_dir):
+    motion = resample(read_bvh(xia_dir / "proud_01_000.bvh"), 30.0)
+    layout = FeatureLayout(motion.skeleton.num_joints)
+    raw = encode(motion, CONTACTS)[:48].reshape(2, 24, -1)  # two windows, as the evaluator sees them
+    raw[..., layout.root_vel] *= 1.4  # the root outruns its feet: they slide backwards
+    fixed = fix_feet_features(raw, motion.skeleton, 30.0, CONTACTS)
+    keep = np.ones(layout.dim, bool)
+    keep[layout.rotations] = False
+    np.testing.assert_array_equal(fixed[..., keep], raw[..., keep])
+    offsets = torch.from_numpy(motion.skeleton.offsets)
+    positions = [
+        features_to_positions(torch.from_numpy(x).double(), offsets, motion.skeleton.parents)
+        for x in (raw, fixed)
+    ]
+    contacts = torch.from_numpy(raw[..., layout.contacts])
+    before, after = (skating(p, contacts, motion.skeleton) for p in positions)
+    assert after["slide_speed"] < 0.5 * before["slide_speed"]

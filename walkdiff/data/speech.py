@@ -1,0 +1,435 @@
+"""Speech-gesture takes: a BVH and a WAV with the same stem (ZEGGS, Trinity / GENEA 2020), for DiffMotion.
+
+Each take becomes two aligned per-frame arrays at the motion frame rate (20 fps by default):
+
+    poses  (F, J k)   local rotations of a joint subset (default: the upper body from the first spine joint
+                      to head and hands, no fingers, as DiffMotion); k = 3 for exponential maps (rotation
+                      vectors, the paper), 6 for the 6D representation
+    audio  (F, M)     M-band log-mel power (M = 27), mel frame k centred on motion frame k
+
+The root's translation and the joints outside the subset are not modelled: a decoded pose puts them in
+a neutral pose, the chordal mean of their training rotations (and the mean root position), so the BVH
+goes back onto the full training skeleton. Every take trains on its first `train_fraction` of frames
+and tests on the rest; with one take (ZEGGS here) validation uses the test part.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import roma
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from walkdiff.data.datamodule import EpochShuffle
+from walkdiff.errors import WalkdiffError
+from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.representation import Normalizer
+from walkdiff.motion.resample import resample
+from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.paths import dataset_dir
+
+log = logging.getLogger(__name__)
+
+ROTATIONS = {"expmap": 3, "6d": 6}  # representation -> numbers per joint
+FINGER_WORDS = ("thumb", "index", "middle", "ring", "pinky", "finger")
+LOG_FLOOR = 1e-10  # added to the mel power before the log: digital silence stays finite
+
+
+# ---------------------------------------------------------------- audio
+
+
+def read_wav(path: str | Path) -> tuple[np.ndarray, int]:
+    """Mono float32 samples and the sample rate (channels are averaged)."""
+    import soundfile
+
+    try:
+        samples, rate = soundfile.read(str(path), dtype="float32", always_2d=True)
+    except (OSError, RuntimeError, soundfile.LibsndfileError) as error:
+        raise WalkdiffError(f"cannot read the audio file ({error})", path=path) from None
+    if samples.shape[0] == 0:
+        raise WalkdiffError("the audio file has no samples", path=path)
+    return samples.mean(axis=1), int(rate)
+
+
+def _rate_for(rate: int, fps: float) -> int:
+    """A sample rate at which one motion frame is a whole number of samples (the mel hop)."""
+    return rate if (rate / fps).is_integer() else int(round(rate / fps) * fps)
+
+
+def log_mel(samples: np.ndarray, rate: int, fps: float, bands: int = 27) -> np.ndarray:
+    """(F, bands) float32 log mel power, one frame per motion frame: frame k is centred at k / fps.
+
+    The hop is one motion frame, the analysis window two (100 ms at 20 fps). A rate that does not
+    divide into motion frames is resampled to the nearest one that does.
+    """
+    import librosa
+
+    target = _rate_for(rate, fps)
+    if target != rate:
+        samples = librosa.resample(samples, orig_sr=rate, target_sr=target)
+    hop = int(target / fps)
+    n_fft = 1 << math.ceil(math.log2(2 * hop))
+    mel = librosa.feature.melspectrogram(
+        y=samples, sr=target, n_fft=n_fft, hop_length=hop, win_length=2 * hop, n_mels=bands, power=2.0
+    )
+    return np.log(mel + LOG_FLOOR).T.astype(np.float32)
+
+
+def onset_times(samples: np.ndarray, rate: int) -> np.ndarray:
+    """Audio onsets (seconds), librosa's spectral-flux onset detector."""
+    import librosa
+
+    return librosa.onset.onset_detect(y=samples, sr=rate, units="time")
+
+
+# ---------------------------------------------------------------- poses
+
+
+def default_joints(skeleton: Skeleton) -> list[str]:
+    """The first spine joint and everything below it, without fingers and 'End' leaf joints."""
+    spine = next((i for i, n in enumerate(skeleton.names) if n.lower().startswith("spine")), None)
+    if spine is None:
+        raise WalkdiffError("no joint named Spine*: give data.joints (the joint names to model) explicitly")
+    below = {spine}
+    for j in range(spine + 1, skeleton.num_joints):  # parents precede children
+        if skeleton.parents[j] in below:
+            below.add(j)
+    return [
+        skeleton.names[j]
+        for j in sorted(below)
+        if not any(w in skeleton.names[j].lower() for w in FINGER_WORDS)
+        and not skeleton.names[j].lower().endswith("end")
+    ]
+
+
+def _continuous_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """(F, J, 3) rotation vectors made continuous over frames.
+
+    A rotation vector jumps from angle ~pi to ~-pi when a joint turns through pi (ZEGGS's hands
+    reach 179 degrees). v (1 + 2 pi k / |v|) is the same rotation for any integer k; each frame takes
+    the k that lands nearest the previous frame, so the features stay smooth for the network.
+    """
+    out = rotvec.copy()
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    axis = np.divide(rotvec, angle, out=np.zeros_like(rotvec), where=angle > 1e-8)
+    for f in range(1, len(out)):
+        along = np.sum(out[f - 1] * axis[f], axis=-1, keepdims=True)
+        k = np.round((along - angle[f]) / (2 * np.pi))
+        out[f] = axis[f] * (angle[f] + 2 * np.pi * k)
+    return out
+
+
+def encode_poses(motion: Motion, joints: list[int], rotation: str) -> np.ndarray:
+    """(F, len(joints) * k) float32 local rotations of `joints` (see the module docstring)."""
+    if rotation not in ROTATIONS:
+        raise WalkdiffError(f"data.rotation must be one of {', '.join(ROTATIONS)}, got {rotation!r}")
+    matrices = torch.tensor(motion.rotations[:, joints])
+    if rotation == "6d":
+        values = matrix_to_6d(matrices).numpy()
+    else:
+        values = _continuous_rotvec(roma.rotmat_to_rotvec(matrices).numpy())
+    return values.reshape(motion.num_frames, -1).astype(np.float32)
+
+
+def pose_matrices(features: np.ndarray, rotation: str) -> np.ndarray:
+    """(F, J k) features -> (F, J, 3, 3) float64 rotation matrices."""
+    x = torch.tensor(np.asarray(features), dtype=torch.float64)
+    x = x.reshape(x.shape[0], -1, ROTATIONS[rotation])
+    matrices = sixd_to_matrix(x) if rotation == "6d" else roma.rotvec_to_rotmat(x)
+    return matrices.numpy()
+
+
+@dataclass
+class NeutralPose:
+    """The pose of everything the model does not generate: all local rotations and the root position."""
+
+    rotations: np.ndarray  # (J, 3, 3) of the full skeleton
+    root: np.ndarray  # (3,)
+
+    @classmethod
+    def of(cls, motions: list[Motion]) -> NeutralPose:
+        """Chordal mean rotation of every joint (the rotation nearest the mean matrix) and mean root."""
+        rotations = np.concatenate([m.rotations for m in motions]).mean(axis=0)
+        mean = roma.special_procrustes(torch.tensor(rotations)).numpy()
+        root = np.concatenate([m.root_positions for m in motions]).mean(axis=0)
+        return cls(mean, root)
+
+    def to_dict(self) -> dict:
+        return {"rotations": self.rotations.tolist(), "root": self.root.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> NeutralPose:
+        return cls(
+            np.asarray(data["rotations"], dtype=np.float64), np.asarray(data["root"], dtype=np.float64)
+        )
+
+
+def decode_poses(
+    features: np.ndarray,
+    skeleton: Skeleton,
+    joints: list[int],
+    rotation: str,
+    neutral: NeutralPose,
+    frame_time: float,
+) -> Motion:
+    """A clip on the full skeleton: the modelled joints from `features`, everything else neutral."""
+    frames = len(features)
+    rotations = np.repeat(neutral.rotations[None], frames, axis=0)
+    rotations[:, joints] = pose_matrices(features, rotation)
+    positions = np.repeat(skeleton.offsets[None], frames, axis=0)
+    positions[:, 0] = neutral.root
+    return Motion(skeleton, rotations, positions, frame_time)
+
+
+# ---------------------------------------------------------------- takes
+
+
+@dataclass
+class SpeechTake:
+    name: str
+    bvh: Path
+    wav: Path
+    motion: Motion  # resampled to the motion frame rate
+    audio: np.ndarray  # (F, bands) log mel, aligned with the motion's frames
+
+
+def list_takes(folder: Path) -> list[tuple[Path, Path]]:
+    """(bvh, wav) pairs of a folder, matched by stem; an unpaired file is an error naming it."""
+    bvhs = {p.stem: p for p in sorted(folder.glob("*.bvh"))}
+    wavs = {p.stem: p for p in sorted(folder.glob("*.wav"))}
+    unpaired = sorted(set(bvhs) ^ set(wavs))
+    if unpaired:
+        names = [str(bvhs.get(s) or wavs.get(s)) for s in unpaired]
+        raise WalkdiffError(
+            f"expected every take as a BVH and a WAV with the same stem; unpaired: {', '.join(names)}",
+            path=folder,
+        )
+    if not bvhs:
+        raise WalkdiffError("no BVH + WAV takes found (expected NAME.bvh with NAME.wav)", path=folder)
+    return [(bvhs[s], wavs[s]) for s in sorted(bvhs)]
+
+
+def load_take(bvh: Path, wav: Path, fps: float = 20.0, bands: int = 27) -> SpeechTake:
+    """Read, resample and align one take; more than one frame of length mismatch is an error."""
+    motion = resample(read_bvh(bvh), fps)
+    audio = log_mel(*read_wav(wav), fps, bands)
+    if abs(motion.num_frames - len(audio)) > 1:
+        raise WalkdiffError(
+            f"audio and motion lengths differ by more than one frame at {fps:g} fps: {bvh} has "
+            f"{motion.num_frames} frames ({motion.num_frames / fps:.2f} s), {wav} has {len(audio)} "
+            f"({len(audio) / fps:.2f} s)",
+            path=bvh,
+        )
+    frames = min(motion.num_frames, len(audio))  # a one-frame difference is rounding at the end
+    return SpeechTake(bvh.stem, bvh, wav, motion.slice(0, frames), audio[:frames])
+
+
+# ---------------------------------------------------------------- Lightning
+
+
+@dataclass(frozen=True)
+class SpeechSpec:
+    """What DiffMotion needs to know about its data; linked into the model by the CLI."""
+
+    dataset: str
+    feature_dim: int  # pose numbers per frame
+    num_joints: int  # joints modelled
+    window: int  # frames per training sequence
+    fps: float
+    joints: tuple[str, ...]
+    rotation: str
+    audio_dim: int
+    past: int  # audio frames before the current one in the control window
+    lookahead: int  # audio frames after it
+
+
+class SequenceDataset(Dataset):
+    """Training sequences of normalised poses with the normalised audio around them.
+
+    Item: poses (window, D) and audio (past + window + lookahead, M), the audio running from `past`
+    frames before the sequence to `lookahead` frames after it (edge frames repeated at a take's ends).
+    """
+
+    def __init__(self, parts: list[tuple[str, np.ndarray, np.ndarray, int, int]], window: int, stride: int):
+        self.parts = parts  # (take, poses, padded audio, first frame, last frame + 1) per take
+        self.window = window
+        self.index = [
+            (i, start)
+            for i, (_, _, _, begin, end) in enumerate(parts)
+            for start in range(begin, end - window + 1, stride)
+        ]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, i: int) -> dict:
+        part, start = self.index[i]
+        take, poses, audio, _, _ = self.parts[part]
+        span = audio.shape[0] - poses.shape[0]  # past + lookahead
+        return {
+            "poses": poses[start : start + self.window],
+            "audio": audio[start : start + self.window + span],
+            "take": take,
+            "start": start,
+        }
+
+
+class SpeechDataModule(L.LightningDataModule):
+    """BVH + WAV takes -> training sequences for DiffMotion.
+
+    Args:
+        dataset: folder name under the data root (`zeggs`), or a path (with a slash) to a folder of takes.
+        root: data root; default $WALKDIFF_DATA, else ./data.
+        fps: motion frame rate (audio features are computed at the same rate).
+        joints: joint names to model; default the upper body (see `default_joints`).
+        rotation: 'expmap' (the paper) or '6d'.
+        bands: mel bands.
+        past, lookahead: audio frames before and after the current frame in its control window.
+        window: frames per training sequence (120 = 6 s at 20 fps); stride: frames between starts.
+        train_fraction: the first part of every take trains, the rest tests.
+    """
+
+    def __init__(
+        self,
+        dataset: str = "zeggs",
+        root: str | None = None,
+        fps: float = 20.0,
+        joints: list[str] | None = None,
+        rotation: str = "expmap",
+        bands: int = 27,
+        past: int = 10,
+        lookahead: int = 20,
+        window: int = 120,
+        stride: int = 10,
+        train_fraction: float = 0.8,
+        batch_size: int = 16,
+        num_workers: int = 0,
+    ):
+        super().__init__()
+        self.save_hyperparameters()
+        if rotation not in ROTATIONS:
+            raise WalkdiffError(f"data.rotation must be one of {', '.join(ROTATIONS)}, got {rotation!r}")
+        if window < 2 or stride < 1 or past < 0 or lookahead < 0:
+            raise WalkdiffError(
+                f"expected data.window >= 2, stride >= 1, past and lookahead >= 0; got {window}, {stride}, "
+                f"{past}, {lookahead}"
+            )
+        if not 0 < train_fraction < 1:
+            raise WalkdiffError(f"data.train_fraction must be in (0, 1), got {train_fraction}")
+        # A name is a folder under the data root; anything with a slash is a folder path itself.
+        self.folder = Path(dataset).expanduser() if "/" in dataset else dataset_dir(dataset, root)
+        if not self.folder.is_dir():
+            raise WalkdiffError("data.dataset: folder of takes not found", path=self.folder)
+        self.pairs = list_takes(self.folder)
+        self.takes: list[SpeechTake] | None = None
+        self.normalizer: Normalizer | None = None
+        self.audio_normalizer: Normalizer | None = None
+        self.neutral: NeutralPose | None = None
+        self.datasets: dict[str, SequenceDataset] = {}
+
+    def load_takes(self) -> list[SpeechTake]:
+        if self.takes is None:
+            h = self.hparams
+            self.takes = [load_take(bvh, wav, h.fps, h.bands) for bvh, wav in self.pairs]
+            first = self.takes[0].motion.skeleton
+            for take in self.takes[1:]:
+                if not take.motion.skeleton.same_hierarchy(first):
+                    raise WalkdiffError(f"skeleton differs from that of {self.takes[0].bvh}", path=take.bvh)
+        return self.takes
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return self.load_takes()[0].motion.skeleton
+
+    @property
+    def joint_names(self) -> list[str]:
+        names = self.hparams.joints or default_joints(self.skeleton)
+        for name in names:
+            if name not in self.skeleton.names:
+                raise WalkdiffError(f"data.joints: no joint {name!r} in {self.pairs[0][0]}")
+        return list(names)
+
+    @property
+    def joint_indices(self) -> list[int]:
+        return [self.skeleton.index(n) for n in self.joint_names]
+
+    @property
+    def spec(self) -> SpeechSpec:
+        h = self.hparams
+        names = self.joint_names
+        return SpeechSpec(
+            dataset=h.dataset,
+            feature_dim=len(names) * ROTATIONS[h.rotation],
+            num_joints=len(names),
+            window=h.window,
+            fps=h.fps,
+            joints=tuple(names),
+            rotation=h.rotation,
+            audio_dim=h.bands,
+            past=h.past,
+            lookahead=h.lookahead,
+        )
+
+    def split_frames(self, take: SpeechTake, split: str) -> tuple[int, int]:
+        """[begin, end) frames of a take in a split ('val' is the test part)."""
+        cut = int(round(take.motion.num_frames * self.hparams.train_fraction))
+        return (0, cut) if split == "train" else (cut, take.motion.num_frames)
+
+    def poses(self, take: SpeechTake) -> np.ndarray:
+        return encode_poses(take.motion, self.joint_indices, self.hparams.rotation)
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.datasets:
+            return
+        h = self.hparams
+        takes = self.load_takes()
+        poses = [self.poses(t) for t in takes]
+        train = [self.split_frames(t, "train") for t in takes]
+        self.normalizer = Normalizer.fit([p[b:e] for p, (b, e) in zip(poses, train)])
+        self.audio_normalizer = Normalizer.fit([t.audio[b:e] for t, (b, e) in zip(takes, train)])
+        self.neutral = NeutralPose.of([t.motion.slice(b, e) for t, (b, e) in zip(takes, train)])
+        for split, stride in (("train", h.stride), ("val", h.window), ("test", h.window)):
+            parts = []
+            for take, p in zip(takes, poses):
+                audio = self.audio_normalizer.normalize(take.audio)
+                padded = np.concatenate(
+                    [audio[:1].repeat(h.past, 0), audio, audio[-1:].repeat(h.lookahead, 0)]
+                )
+                begin, end = self.split_frames(take, split)
+                parts.append((take.name, self.normalizer.normalize(p), padded, begin, end))
+            self.datasets[split] = SequenceDataset(parts, h.window, stride)
+            if len(self.datasets[split]) == 0:
+                raise WalkdiffError(
+                    f"the {split} part of the takes has no {h.window}-frame sequences; shorten data.window"
+                )
+        log.info(f"speech: {len(self.datasets['train'])} training sequences of {h.window} frames")
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        self.setup()
+        data = self.datasets[split]
+        seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
+        return DataLoader(
+            data,
+            batch_size=self.hparams.batch_size,
+            sampler=EpochShuffle(len(data), seed) if shuffle else None,
+            drop_last=shuffle and len(data) >= self.hparams.batch_size,
+            num_workers=self.hparams.num_workers,
+            persistent_workers=self.hparams.num_workers > 0,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)

@@ -1,0 +1,155 @@
+"""Foot clean-up: pin feet that are labelled in contact and bend the legs to reach them (two-bone IK).
+
+For each foot (heel and toe joints of a `ContactSpec`), every run of frames in which the heel is in contact
+gets one ground point, the mean horizontal position of the heel over that run; the same for the toe. In a
+contact frame the ankle (the heel joint) is moved by the mean offset that puts its contacting joints on
+their points, so the foot moves rigidly; heights are left alone (skating is horizontal sliding, and the
+model's heights already touch the floor). Around each contact the offset fades out over `blend` frames,
+so the leg does not snap when the foot lifts off.
+
+The legs reach the moved ankle by analytic two-bone IK: the knee bends in its own bend plane to get the
+hip-ankle distance right, then the hip swings the whole leg onto the target; the foot keeps its world
+orientation, so the toe follows the ankle. Only hip, knee and ankle rotations of frames near a contact
+change; the root and every other joint are untouched. A target out of reach gets a straight leg.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import roma
+import torch
+
+from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion.representation import ContactSpec, FeatureLayout, decode, encode
+from walkdiff.motion.skeleton import Motion, Skeleton
+
+# A leg is never stretched to exactly its full length: the knee angle would lose its direction.
+_MAX_REACH = 0.999
+
+
+def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of every run of True in a (F,) boolean array."""
+    padded = np.concatenate([[False], contact.astype(bool), [False]])
+    edges = np.flatnonzero(padded[1:] != padded[:-1])
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _pin_offsets(position: np.ndarray, contact: np.ndarray) -> np.ndarray:
+    """(F, 3) horizontal offsets moving a joint onto the mean of each of its contact runs (0 elsewhere)."""
+    offset = np.zeros_like(position)
+    for start, stop in contact_runs(contact):
+        anchor = position[start:stop, [0, 2]].mean(axis=0)
+        offset[start:stop, [0, 2]] = anchor - position[start:stop, [0, 2]]
+    return offset
+
+
+def ankle_offsets(heel: np.ndarray, toe: np.ndarray, contacts: np.ndarray, blend: int) -> np.ndarray:
+    """(F, 3) ankle offsets for one foot from heel and toe world positions (F, 3) and contacts (F, 2)."""
+    heel_on, toe_on = contacts[:, 0] > 0.5, contacts[:, 1] > 0.5
+    count = heel_on.astype(float) + toe_on
+    total = _pin_offsets(heel, heel_on) + _pin_offsets(toe, toe_on)
+    offset = total / np.maximum(count, 1)[:, None]
+    active = count > 0
+    if not active.any() or blend <= 0:
+        return offset
+    # Outside contact: the offset of the nearest contact frame, fading linearly to 0 over `blend` frames.
+    frames = np.arange(len(offset))
+    on = np.flatnonzero(active)
+    nearest = on[np.clip(np.searchsorted(on, frames), 1, len(on) - 1) - 1]
+    after = on[np.clip(np.searchsorted(on, frames), 0, len(on) - 1)]
+    nearest = np.where(np.abs(after - frames) < np.abs(nearest - frames), after, nearest)
+    weight = np.clip(1 - np.abs(nearest - frames) / (blend + 1), 0, 1)
+    return np.where(active[:, None], offset, weight[:, None] * offset[nearest])
+
+
+def _unit(v: torch.Tensor) -> torch.Tensor:
+    return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def _rotation_between(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) shortest-arc rotations turning directions p onto q."""
+    axis = torch.cross(p, q, dim=-1)
+    angle = torch.atan2(axis.norm(dim=-1), (p * q).sum(-1))
+    return roma.rotvec_to_rotmat(_unit(axis) * angle.unsqueeze(-1))
+
+
+def two_bone_ik(
+    rotations: np.ndarray,
+    positions: np.ndarray,
+    parents: np.ndarray,
+    ankle: int,
+    targets: np.ndarray,
+    frames: np.ndarray,
+) -> np.ndarray:
+    """Local rotations (F, J, 3, 3) with the leg ending at `ankle` bent to reach `targets` (F, 3).
+
+    The knee is the ankle's parent and the hip the knee's. Only `frames` (a boolean (F,) mask) change.
+    """
+    knee = int(parents[ankle])
+    hip = int(parents[knee])
+    rot = torch.tensor(rotations)
+    world, world_rot = forward_kinematics(rot, torch.tensor(positions), parents, return_rotations=True)
+    a, b, c = world[:, hip], world[:, knee], world[:, ankle]
+    target = torch.tensor(targets)
+    upper, lower = (b - a).norm(dim=-1), (c - b).norm(dim=-1)
+
+    # Knee: bend so that |ankle - hip| becomes |target - hip|, about the leg's own bend axis.
+    reach = (target - a).norm(dim=-1).clamp((upper - lower).abs() + 1e-6, _MAX_REACH * (upper + lower))
+    cos_now = ((a - b) * (c - b)).sum(-1) / (upper * lower)
+    cos_new = (upper**2 + lower**2 - reach**2) / (2 * upper * lower)
+    bend = torch.acos(cos_new.clamp(-1, 1)) - torch.acos(cos_now.clamp(-1, 1))
+    normal = torch.cross(a - b, c - b, dim=-1)
+    # A straight leg has no bend plane: use the hip-frame axis of the frame bent the most.
+    reference = int(normal.norm(dim=-1).argmax())
+    hip_axis = world_rot[reference, hip].T @ _unit(normal[reference])
+    fallback = world_rot[:, hip] @ hip_axis
+    straight = normal.norm(dim=-1) < 1e-6 * upper * lower
+    axis = _unit(torch.where(straight[:, None], fallback, normal))
+    knee_turn = roma.rotvec_to_rotmat(axis * bend.unsqueeze(-1))
+    c_bent = b + (knee_turn @ (c - b).unsqueeze(-1)).squeeze(-1)
+
+    # Hip: swing the bent leg so the ankle points at the target.
+    swing = _rotation_between(c_bent - a, target - a)
+    hip_world = swing @ world_rot[:, hip]
+    knee_world = swing @ knee_turn @ world_rot[:, knee]
+    parent_world = world_rot[:, int(parents[hip])]
+    out = rot.clone()
+    out[:, hip] = parent_world.transpose(-1, -2) @ hip_world
+    out[:, knee] = hip_world.transpose(-1, -2) @ knee_world
+    out[:, ankle] = knee_world.transpose(-1, -2) @ world_rot[:, ankle]  # the foot keeps its orientation
+    mask = torch.from_numpy(np.asarray(frames, dtype=bool))
+    return torch.where(mask[:, None, None, None], out, rot).numpy()
+
+
+def fix_feet(motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int = 3) -> Motion:
+    """The clip with its feet pinned during contacts (F, 4), ordered as `spec.joints` (> 0.5: in contact)."""
+    skeleton = motion.skeleton
+    contacts = np.asarray(contacts)
+    if contacts.shape != (motion.num_frames, 4):
+        raise ValueError(f"expected contacts ({motion.num_frames}, 4), got {contacts.shape}")
+    world = forward_kinematics(
+        torch.tensor(motion.rotations), torch.tensor(motion.positions), skeleton.parents
+    ).numpy()
+    rotations = motion.rotations
+    joints = [skeleton.index(name) for name in spec.joints]
+    for side, (heel, toe) in enumerate((joints[:2], joints[2:])):
+        offset = ankle_offsets(world[:, heel], world[:, toe], contacts[:, 2 * side : 2 * side + 2], blend)
+        moved = np.abs(offset).sum(-1) > 0
+        if moved.any():
+            # The legs do not share joints below the pelvis, so each sees the world positions of the input.
+            rotations = two_bone_ik(
+                rotations, motion.positions, skeleton.parents, heel, world[:, heel] + offset, moved
+            )
+    return Motion(skeleton, rotations, motion.positions, motion.frame_time)
+
+
+def fix_feet_features(raw: np.ndarray, skeleton: Skeleton, fps: float, spec: ContactSpec) -> np.ndarray:
+    """`fix_feet` on feature windows (..., F, D) in data units: only the rotation channels change."""
+    raw = np.asarray(raw, dtype=np.float32)
+    layout = FeatureLayout(skeleton.num_joints)
+    out = raw.copy()
+    for index in np.ndindex(raw.shape[:-2]):
+        motion = decode(raw[index], skeleton, 1.0 / fps)
+        fixed = fix_feet(motion, raw[index][:, layout.contacts], spec)
+        out[index][:, layout.rotations] = encode(fixed, spec)[:, layout.rotations]
+    return out

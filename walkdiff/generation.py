@@ -1,0 +1,457 @@
+"""Using a trained GAN-DDPM: `walkdiff sample` and `walkdiff transfer`, motion of any length.
+
+The model denoises fixed windows (24 frames at 30 fps for Xia). Longer motion is made window after window:
+each window after the first starts `overlap` frames before the end of what exists, and those frames are
+inpainted, i.e. held to the frames already made while the rest is denoised around them. Features hold root
+*velocities*, so the windows' features joined into one sequence decode to one continuous root path.
+
+Transfer restyles a clip (SDEdit): its features are noised to step strength·T with q_sample and denoised
+from there under the target style, window by window as above. The noise level sets how much of the
+original survives: content and timing at 0.6, little but the path at 1.0. `keep_trajectory` inpaints the
+root velocity and turning channels with the source's, so the restyled clip walks exactly the source's path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from walkdiff.data.datasets import dataset_module
+from walkdiff.diffusion import respace, run_steps, step_coefficients
+from walkdiff.errors import WalkdiffError
+from walkdiff.footfix import fix_feet
+from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions, start_pose
+from walkdiff.motion.resample import resample
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.render import render_gif
+
+# Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
+Known = tuple[torch.Tensor, torch.Tensor]
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """How windows are denoised: ancestral DDPM over all T steps, or DDIM over `steps` of them."""
+
+    sampler: str = "ddpm"
+    steps: int | None = None  # DDIM steps (default 10); unused by DDPM
+    eta: float = 0.0  # DDIM noise (0: deterministic)
+    guidance: float = 1.0  # classifier-free guidance weight; 1 is none
+
+    def __post_init__(self) -> None:
+        if self.sampler not in ("ddpm", "ddim"):
+            raise WalkdiffError(f"--sampler: expected ddpm or ddim, got {self.sampler!r}")
+        if self.steps is not None and self.steps < 1:
+            raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
+
+
+# ---------------------------------------------------------------- labels
+
+
+def parse_style(model, text: str) -> tuple[torch.Tensor, str]:
+    """A style id, or mixing weights from 'angry:0.7,old:0.3' (scaled to sum 1), and a file-name label."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if len(parts) == 1 and ":" not in parts[0]:
+        return model.label_ids(parts, "style")[0], parts[0]
+    names, weights = [], []
+    for part in parts:
+        name, _, weight = part.partition(":")
+        try:
+            value = float(weight) if weight else float("nan")
+        except ValueError:
+            value = float("nan")
+        if not np.isfinite(value) or value <= 0:
+            raise WalkdiffError(f"--style: expected NAME or NAME:WEIGHT,... with weights > 0, got {text!r}")
+        names.append(name.strip())
+        weights.append(value)
+    ids = model.label_ids(names, "style")
+    mix = torch.zeros(len(model.spec["styles"]), device=model.device)
+    mix.index_add_(0, ids, torch.tensor(weights, device=model.device))
+    mix /= mix.sum()
+    label = "+".join(f"{n}{round(100 * w / sum(weights))}" for n, w in zip(names, weights, strict=True))
+    return mix, label
+
+
+def _batch(style: torch.Tensor, count: int) -> torch.Tensor:
+    """One style id () or mixing vector (S,) repeated for a batch."""
+    return style.expand(count, *style.shape).clone()
+
+
+# ---------------------------------------------------------------- windows
+
+
+def window_plan(frames: int, window: int, overlap: int) -> list[tuple[int, int]]:
+    """(start, known) per window: where it starts and how many of its first frames already exist.
+
+    Windows advance by window - overlap; the last one is pulled back to end exactly at `frames` (so it may
+    overlap more). A sequence no longer than a window is one window of its own length.
+    """
+    if frames < 1:
+        raise WalkdiffError(f"--frames must be at least 1, got {frames}")
+    if not 0 < overlap < window:
+        raise WalkdiffError(f"the window overlap must be in [1, {window - 1}], got {overlap}")
+    plan, done = [(0, 0)], min(window, frames)
+    while done < frames:
+        start = min(done - overlap, frames - window)
+        plan.append((start, done - start))
+        done = start + window
+    return plan
+
+
+def seam_steps(frames: int, window: int, overlap: int) -> list[int]:
+    """Frame steps (t -> t + 1, by t) that cross from a window's known frames into its new ones."""
+    return [start + known - 1 for start, known in window_plan(frames, window, overlap)[1:]]
+
+
+def joint_speeds(model, x: torch.Tensor) -> torch.Tensor:
+    """Mean joint speed (units/s) of each step between frames of normalised features (B, F, D): (B, F - 1)."""
+    skeleton = model.skeleton
+    raw = torch.from_numpy(model.to_raw(x)).double()
+    positions = features_to_positions(raw, torch.from_numpy(skeleton.offsets), skeleton.parents)
+    return (positions[:, 1:] - positions[:, :-1]).norm(dim=-1).mean(-1) * model.spec["fps"]
+
+
+def default_overlap(window: int) -> int:
+    """A third of the window: enough context for the next one to continue the gait, most of it new."""
+    return max(1, window // 3)
+
+
+def windowed(
+    batch: int,
+    frames: int,
+    dim: int,
+    window: int,
+    overlap: int,
+    denoise: Callable[[int, int, Known | None], torch.Tensor],
+) -> torch.Tensor:
+    """(B, frames, D) made window by window; denoise(start, stop, known) returns the window [start, stop)."""
+    out = torch.zeros(batch, frames, dim)
+    for start, known in window_plan(frames, window, overlap):
+        stop = start + min(window, frames)
+        inpaint = None
+        if known:
+            mask = torch.zeros(batch, stop - start, dim, dtype=torch.bool)
+            mask[:, :known] = True
+            inpaint = (mask, out[:, start:stop].clone())
+        out[:, start:stop] = denoise(start, stop, inpaint).float().cpu()
+    return out
+
+
+def generate_long(
+    model,
+    style: torch.Tensor,
+    content: torch.Tensor,
+    frames: int,
+    sampling: Sampling = Sampling(),
+    generator: torch.Generator | None = None,
+    overlap: int | None = None,
+) -> torch.Tensor:
+    """Normalised features (B, frames, D) of any length from a model whose `generate` makes windows."""
+    window = model.spec["window"]
+
+    def denoise(start: int, stop: int, inpaint: Known | None) -> torch.Tensor:
+        return model.generate(
+            style,
+            content,
+            stop - start,
+            sampler=sampling.sampler,
+            steps=sampling.steps,
+            eta=sampling.eta,
+            guidance=sampling.guidance,
+            generator=generator,
+            inpaint=inpaint,
+        )
+
+    overlap = overlap or default_overlap(window)
+    return windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise)
+
+
+def noised_steps(model, strength: float, sampling: Sampling) -> tuple[int, list[int], float]:
+    """(t0, timesteps from t0 down to 0, eta) of a transfer at `strength` in (0, 1]."""
+    if not 0 < strength <= 1:
+        raise WalkdiffError(f"--strength must be in (0, 1], got {strength}")
+    total = model.diffusion.num_timesteps
+    t0 = max(1, round(strength * total)) - 1
+    if sampling.sampler == "ddpm":
+        return t0, list(range(t0, -1, -1)), 1.0
+    # DDIM keeps its step density: K steps over all of T become about K·strength steps below t0.
+    steps = max(1, round((sampling.steps or 10) * (t0 + 1) / total))
+    return t0, respace(t0 + 1, min(steps, t0 + 1)), sampling.eta
+
+
+def restyle(
+    model,
+    source: torch.Tensor,
+    style: torch.Tensor,
+    content: torch.Tensor,
+    strength: float = 0.6,
+    sampling: Sampling = Sampling(),
+    generator: torch.Generator | None = None,
+    keep_trajectory: bool = False,
+    overlap: int | None = None,
+) -> torch.Tensor:
+    """Normalised source features (B, F, D) noised to strength·T and denoised under `style` and `content`."""
+    diffusion = model.diffusion
+    t0, timesteps, eta = noised_steps(model, strength, sampling)
+    table = step_coefficients(diffusion, timesteps, eta)
+    model_fn = model.model_fn(style, content, sampling.guidance)
+    layout = FeatureLayout.from_dim(source.shape[-1])
+    root = torch.zeros(source.shape[-1], dtype=torch.bool)
+    root[layout.root_vel] = root[layout.heading_vel] = True
+    device = diffusion.betas.device
+
+    def denoise(start: int, stop: int, inpaint: Known | None) -> torch.Tensor:
+        x0 = source[:, start:stop].to(device)
+        mask = torch.zeros(x0.shape, dtype=torch.bool) if inpaint is None else inpaint[0]
+        known = torch.zeros(x0.shape) if inpaint is None else inpaint[1]
+        if keep_trajectory:
+            known = torch.where(root & ~mask, x0.cpu(), known)
+            mask = mask | root
+        draw_on = x0.device if generator is None else generator.device
+        noise = torch.randn(x0.shape, generator=generator, device=draw_on).to(device)
+        x_t = diffusion.q_sample(x0, torch.full((x0.shape[0],), t0, device=device), noise)
+        inpainted = (mask, known) if mask.any() else None
+        return run_steps(model_fn, diffusion, None, table, generator=generator, x_T=x_t, inpaint=inpainted)
+
+    window = model.spec["window"]
+    overlap = overlap or default_overlap(window)
+    batch, frames, dim = source.shape
+    return windowed(batch, frames, dim, window, overlap, denoise)
+
+
+# ---------------------------------------------------------------- files
+
+
+def load_generator(path: str | Path, device: str = "cpu"):
+    """A trained StyledMotionDiffusion with the skeleton it writes BVH on."""
+    from walkdiff.models.styled_ddpm import StyledMotionDiffusion
+
+    path = Path(path)
+    if not path.is_file():
+        raise WalkdiffError("generator checkpoint not found", path=path)
+    model = StyledMotionDiffusion.load_from_checkpoint(path, map_location="cpu", weights_only=False)
+    if model.skeleton is None:
+        raise WalkdiffError("the checkpoint has no skeleton; was it saved by `walkdiff fit`?", path=path)
+    return model.to(device).eval()
+
+
+def skeleton_mismatch(found: Skeleton, expected: Skeleton) -> list[str]:
+    """What keeps a clip on `found` from being read as one on `expected` (empty: the same hierarchy)."""
+    problems = []
+    missing = [n for n in expected.names if n not in found.names]
+    extra = [n for n in found.names if n not in expected.names]
+    if missing:
+        problems.append(f"missing joints: {', '.join(missing)}")
+    if extra:
+        problems.append(f"unknown joints: {', '.join(extra)}")
+    if not problems:
+        if found.names != expected.names:
+            problems.append("the joints are in another order")
+        else:
+            moved = [
+                name
+                for name, p, q in zip(expected.names, expected.parents, found.parents, strict=True)
+                if p != q
+            ]
+            problems += [f"joints with another parent: {', '.join(moved)}"] if moved else []
+    return problems
+
+
+def _check_free(paths: list[Path], overwrite: bool) -> None:
+    taken = [str(p) for p in paths if p.exists()]
+    if taken and not overwrite:
+        more = f" and {len(taken) - 3} more" if len(taken) > 3 else ""
+        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}{more}; pass --overwrite to replace them")
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def _finish(model, raw: np.ndarray, start: tuple[np.ndarray, float] | None, feet: bool) -> Motion:
+    """Features in data units (F, D) -> a clip on the training skeleton, feet cleaned up if asked."""
+    fps = model.spec["fps"]
+    position, heading = start if start is not None else (None, 0.0)
+    motion = decode(raw, model.skeleton, 1.0 / fps, position, heading)
+    if feet:
+        contacts = raw[:, FeatureLayout(model.skeleton.num_joints).contacts]
+        motion = fix_feet(motion, contacts, dataset_module(model.spec["dataset"]).CONTACTS)
+    return motion
+
+
+def _write_clip(
+    path: Path, motion: Motion, title: str, gif: bool, others: tuple[tuple[Motion, str], ...] = ()
+) -> None:
+    write_bvh(path, motion)
+    if gif:
+        clips = [*others, (motion, title)]
+        render_gif(
+            path.with_suffix(".gif"),
+            [motion_world_positions(m) for m, _ in clips],
+            motion.skeleton.parents,
+            motion.fps,
+            names=motion.skeleton.names,
+            titles=[t for _, t in clips],
+        )
+
+
+def sample(
+    ckpt: str | Path,
+    out: str | Path,
+    style: str,
+    content: str = "walk",
+    num: int = 8,
+    frames: int = 300,
+    seed: int = 0,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
+    guidance: float = 1.0,
+    overlap: int | None = None,
+    fix_feet: bool = False,
+    gif: bool = True,
+    overwrite: bool = False,
+    device: str = "cpu",
+) -> dict:
+    """`walkdiff sample`: `num` clips as BVH (+ GIF) and `manifest.json` in `out`; returns the manifest."""
+    if num < 1:
+        raise WalkdiffError(f"--num must be at least 1, got {num}")
+    sampling = Sampling(sampler, steps, eta, guidance)
+    model = load_generator(ckpt, device)
+    style_label, label = parse_style(model, style)
+    content_id = model.label_ids([content], "content")[0]
+    out = Path(out)
+    names = [f"{label}_{content}_{i:03d}" for i in range(num)]
+    manifest_path = out / "manifest.json"
+    bvh = [out / f"{n}.bvh" for n in names]
+    _check_free(bvh + [p.with_suffix(".gif") for p in bvh if gif] + [manifest_path], overwrite)
+    window_plan(frames, model.spec["window"], overlap or default_overlap(model.spec["window"]))
+
+    generator = torch.Generator(device=model.device).manual_seed(seed)
+    started = time.perf_counter()
+    x = generate_long(
+        model, _batch(style_label, num), _batch(content_id, num), frames, sampling, generator, overlap
+    )
+    generated = time.perf_counter() - started
+    raw = model.to_raw(x)
+    out.mkdir(parents=True, exist_ok=True)
+    for path, features in zip(bvh, raw, strict=True):
+        _write_clip(path, _finish(model, features, None, fix_feet), f"{label} {content}", gif)
+    manifest = {
+        "command": "sample",
+        "checkpoint": str(ckpt),
+        "settings": {
+            "style": style,
+            "content": content,
+            "num": num,
+            "frames": frames,
+            "fps": model.spec["fps"],
+            **asdict(sampling),
+            "overlap": overlap or default_overlap(model.spec["window"]),
+            "fix_feet": fix_feet,
+        },
+        "seed": seed,
+        "files": [p.name for p in bvh],
+        "timing": {
+            "generate_s": round(generated, 3),
+            "write_s": round(time.perf_counter() - started - generated, 3),
+            "generated_frames_per_s": round(num * frames / generated, 1),
+        },
+    }
+    _write_json(manifest_path, manifest)
+    return manifest
+
+
+def transfer(
+    ckpt: str | Path,
+    input: str | Path,
+    out: str | Path,
+    style: str,
+    content: str = "walk",
+    strength: float = 0.6,
+    keep_trajectory: bool = False,
+    seed: int = 0,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
+    guidance: float = 1.0,
+    overlap: int | None = None,
+    fix_feet: bool = False,
+    gif: bool = True,
+    overwrite: bool = False,
+    device: str = "cpu",
+) -> dict:
+    """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source and a JSON report."""
+    sampling = Sampling(sampler, steps, eta, guidance)
+    model = load_generator(ckpt, device)
+    style_label, label = parse_style(model, style)
+    content_id = model.label_ids([content], "content")[0]
+    noised_steps(model, strength, sampling)  # bad strength fails before any work
+    input = Path(input)
+    motion = read_bvh(input)
+    problems = skeleton_mismatch(motion.skeleton, model.skeleton)
+    if problems:
+        raise WalkdiffError(
+            "the clip is on another skeleton than the model's: " + "; ".join(problems), path=input
+        )
+    fps = model.spec["fps"]
+    if abs(motion.fps - fps) > 1e-3 * fps:
+        motion = resample(motion, fps)
+    out = Path(out)
+    target = out / f"{input.stem}_to_{label}.bvh"
+    report_path = target.with_suffix(".json")
+    _check_free([target, report_path] + ([target.with_suffix(".gif")] if gif else []), overwrite)
+
+    contacts = dataset_module(model.spec["dataset"]).CONTACTS
+    source = model.normalizer.normalize(torch.from_numpy(encode(motion, contacts)))[None]
+    generator = torch.Generator(device=model.device).manual_seed(seed)
+    started = time.perf_counter()
+    x = restyle(
+        model, source, _batch(style_label, 1), _batch(content_id, 1), strength, sampling, generator,
+        keep_trajectory, overlap,
+    )  # fmt: skip
+    elapsed = time.perf_counter() - started
+    result = _finish(model, model.to_raw(x)[0], start_pose(motion), fix_feet)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_clip(target, result, label, gif, others=((motion, "source"),))
+    report = {
+        "command": "transfer",
+        "checkpoint": str(ckpt),
+        "input": str(input),
+        "settings": {
+            "style": style,
+            "content": content,
+            "strength": strength,
+            "keep_trajectory": keep_trajectory,
+            "frames": motion.num_frames,
+            "fps": fps,
+            **asdict(sampling),
+            "overlap": overlap or default_overlap(model.spec["window"]),
+            "fix_feet": fix_feet,
+        },
+        "seed": seed,
+        "file": target.name,
+        "root_path_error": root_path_error(motion, result),
+        "timing": {"restyle_s": round(elapsed, 3)},
+    }
+    _write_json(report_path, report)
+    return report
+
+
+def root_path_error(source: Motion, result: Motion) -> dict[str, float]:
+    """Mean horizontal distance between the two root paths, absolute and relative to the distance walked."""
+    a, b = source.root_positions[:, [0, 2]], result.root_positions[:, [0, 2]]
+    walked = float(np.linalg.norm(np.diff(a, axis=0), axis=1).sum())
+    error = float(np.linalg.norm(a - b, axis=1).mean())
+    return {"mean": error, "walked": walked, "relative": error / walked if walked > 0 else float("nan")}

@@ -1,0 +1,290 @@
+"""Speech-driven gestures with a trained DiffMotion: synthesis, smoothing, metrics, commands, a callback.
+
+Metrics (all on world positions of the modelled joints, root and other joints in the neutral pose, so
+generated and real motion are compared on the same footing):
+
+- L1: mean over frames and joints of |x - x'| + |y - y'| + |z - z'| against the ground truth.
+- PCK: the fraction of joints closer than `pck_threshold` (10 units = 10 cm for ZEGGS) to the truth.
+- Beat consistency: motion beats B_m are the local minima of the mean joint speed, audio beats B_a the
+  onsets; BC = 1/|B_m| sum_{b in B_m} exp(-min_{a in B_a} (b - a)^2 / (2 sigma^2)), sigma = 0.1 s.
+- Diversity: samples of the same audio cut into clips of equal length; the mean L1 over all pairs of
+  clips (DiffMotion's protocol).
+- Jerk: mean norm of the third difference of positions times fps^3 (walkdiff.metrics.Jitter).
+- Seconds per frame of generation.
+"""
+
+from __future__ import annotations
+
+import inspect
+import itertools
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from scipy.signal import argrelmin
+
+from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav
+from walkdiff.errors import WalkdiffError
+from walkdiff.metrics import Jitter
+from walkdiff.motion.bvh import write_bvh
+from walkdiff.motion.filters import savgol
+from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.skeleton import Motion
+from walkdiff.render import render_gif
+from walkdiff.tracking import log_file
+
+SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
+BEAT_SIGMA = 0.1  # seconds
+SHIFT_SECONDS = 2.0  # the audio-blind baseline of beat consistency
+
+
+# ---------------------------------------------------------------- model and synthesis
+
+
+def load_model(path: str | Path, device: str | torch.device = "cpu"):
+    from walkdiff.models.diffmotion import DiffMotion
+
+    path = Path(path)
+    if not path.is_file():
+        raise WalkdiffError("DiffMotion checkpoint not found", path=path)
+    try:
+        model = DiffMotion.load_from_checkpoint(path, map_location="cpu", weights_only=False)
+    except (KeyError, RuntimeError, TypeError) as error:
+        raise WalkdiffError(
+            f"not a DiffMotion checkpoint ({type(error).__name__}: {error})", path=path
+        ) from None
+    if model.skeleton is None or model.neutral is None:
+        raise WalkdiffError(
+            "the checkpoint has no skeleton / neutral pose; was it saved by `walkdiff fit`?", path=path
+        )
+    return model.to(device).eval()
+
+
+def synthesize(model, audio: np.ndarray, streams: int = 1, seed: int = 0, smooth: bool = False) -> np.ndarray:
+    """(streams, F, D) pose features for (F, M) log-mel audio, the streams batched; optionally smoothed."""
+    generator = torch.Generator(device=model.device).manual_seed(seed)
+    poses = model.generate(torch.from_numpy(audio), generator, streams).cpu().numpy()
+    return savgol(poses, SMOOTH_WINDOW, SMOOTH_ORDER, axis=1) if smooth else poses
+
+
+def to_motion(model, features: np.ndarray) -> Motion:
+    """(F, D) features -> a clip on the model's full training skeleton."""
+    spec = model.spec
+    joints = [model.skeleton.index(n) for n in spec["joints"]]
+    return decode_poses(features, model.skeleton, joints, spec["rotation"], model.neutral, 1.0 / spec["fps"])
+
+
+def joint_positions(model, features: np.ndarray) -> np.ndarray:
+    """(F, J, 3) world positions of the modelled joints."""
+    joints = [model.skeleton.index(n) for n in model.spec["joints"]]
+    return motion_world_positions(to_motion(model, features))[:, joints]
+
+
+def write_clips(out: Path, stem: str, model, clips: list[np.ndarray], titles: list[str]) -> list[Path]:
+    """One BVH per clip of features and one GIF with all of them side by side."""
+    out.mkdir(parents=True, exist_ok=True)
+    files, positions = [], []
+    for clip, title in zip(clips, titles):
+        motion = to_motion(model, clip)
+        path = out / (f"{stem}.bvh" if len(clips) == 1 else f"{stem}_{title}.bvh")
+        write_bvh(path, motion)
+        files.append(path)
+        positions.append(motion_world_positions(motion))
+    gif = out / f"{stem}.gif"
+    skeleton = model.skeleton
+    render_gif(gif, positions, skeleton.parents, model.spec["fps"], names=skeleton.names, titles=titles)
+    return files + [gif]
+
+
+def gesture(ckpt: str, audio: str, out: str, seed: int = 0, smooth: bool = False, streams: int = 1) -> dict:
+    """`walkdiff gesture`: BVH(s) and a GIF for a WAV file."""
+    if streams < 1:
+        raise WalkdiffError(f"--streams must be >= 1, got {streams}")
+    model = load_model(ckpt)
+    samples, rate = read_wav(audio)
+    mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
+    start = time.perf_counter()
+    clips = synthesize(model, mel, streams, seed, smooth)
+    elapsed = time.perf_counter() - start
+    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
+    files = write_clips(Path(out), Path(audio).stem, model, list(clips), titles)
+    return {
+        "frames": len(mel),
+        "seconds": len(mel) / model.spec["fps"],
+        "streams": streams,
+        "seconds_per_frame": elapsed / len(mel),
+        "files": [str(f) for f in files],
+    }
+
+
+# ---------------------------------------------------------------- metrics
+
+
+def l1_distance(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Mean over frames and joints of the L1 norm of the position error; (F, J, 3) each."""
+    return float(np.abs(pred - truth).sum(axis=-1).mean())
+
+
+def pck(pred: np.ndarray, truth: np.ndarray, threshold: float) -> float:
+    """Fraction of (frame, joint) positions within `threshold` (Euclidean) of the truth."""
+    return float((np.linalg.norm(pred - truth, axis=-1) < threshold).mean())
+
+
+def motion_beats(positions: np.ndarray, fps: float) -> np.ndarray:
+    """Times (s) of the local minima of the mean joint speed; positions (F, J, 3)."""
+    speed = np.linalg.norm(np.diff(positions, axis=0), axis=-1).mean(axis=-1)
+    return (argrelmin(speed)[0] + 0.5) / fps  # speed i lies between frames i and i + 1
+
+
+def beat_consistency(beats: np.ndarray, onsets: np.ndarray, sigma: float = BEAT_SIGMA) -> float:
+    """Mean over motion beats of exp(-d^2 / (2 sigma^2)), d the distance to the nearest audio onset."""
+    if len(beats) == 0 or len(onsets) == 0:
+        return 0.0
+    distance = np.abs(np.asarray(beats)[:, None] - np.asarray(onsets)[None]).min(axis=1)
+    return float(np.exp(-(distance**2) / (2 * sigma**2)).mean())
+
+
+def shift_beats(beats: np.ndarray, seconds: float, duration: float) -> np.ndarray:
+    """Beats of the motion rolled by `seconds` against its audio (circularly, so none are lost)."""
+    return np.sort((np.asarray(beats) + seconds) % duration)
+
+
+def diversity(samples: np.ndarray, clip_frames: int) -> float:
+    """Mean L1 between all pairs of equal clips cut from the samples (S, F, J, 3) of one audio."""
+    count = samples.shape[1] // clip_frames
+    clips = samples[:, : count * clip_frames].reshape(-1, clip_frames, *samples.shape[2:])
+    if len(clips) < 2:
+        raise WalkdiffError(f"diversity needs at least two {clip_frames}-frame clips, got {len(clips)}")
+    return float(
+        np.mean([l1_distance(clips[i], clips[j]) for i, j in itertools.combinations(range(len(clips)), 2)])
+    )
+
+
+def mean_jerk(positions: np.ndarray, fps: float) -> float:
+    """Mean jerk magnitude of (F, J, 3) or (S, F, J, 3) positions."""
+    metric = Jitter(fps)
+    metric.update(torch.from_numpy(positions.reshape(-1, *positions.shape[-3:])))
+    return float(metric.compute())
+
+
+# ---------------------------------------------------------------- evaluation
+
+
+def evaluate_gesture(
+    ckpt: str,
+    out: str,
+    samples: int = 5,
+    seed: int = 0,
+    clip_seconds: float = 2.0,
+    pck_threshold: float = 10.0,
+    root: str | None = None,
+) -> dict:
+    """`walkdiff evaluate-gesture`: every metric on the held-out part of each take, into report.json."""
+    if samples < 1:
+        raise WalkdiffError(f"--samples must be >= 1, got {samples}")
+    model = load_model(ckpt)
+    checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
+    settings = dict(checkpoint.get("datamodule_hyper_parameters") or {})
+    settings |= {"root": root} if root is not None else {}
+    accepted = inspect.signature(SpeechDataModule).parameters  # LightningCLI adds _class_path
+    settings = {k: v for k, v in settings.items() if k in accepted}
+    data = SpeechDataModule(**settings)
+    fps = model.spec["fps"]
+    out_dir = Path(out)
+    rows = []
+    for take in data.load_takes():
+        begin, end = data.split_frames(take, "test")
+        truth_features = data.poses(take)[begin:end]
+        wav, rate = read_wav(take.wav)
+        onsets = onset_times(wav[int(begin / fps * rate) : int(end / fps * rate)], rate)
+        start = time.perf_counter()
+        raw = synthesize(model, take.audio[begin:end], samples, seed)
+        elapsed = time.perf_counter() - start
+        smooth = savgol(raw, SMOOTH_WINDOW, SMOOTH_ORDER, axis=1)
+        truth = joint_positions(model, truth_features)
+        duration, clip = (end - begin) / fps, round(clip_seconds * fps)
+        row = {"take": take.name, "frames": end - begin, "seconds": duration, "onsets": len(onsets)}
+        row["truth"] = _beat_row(truth, onsets, fps, duration) | {"jerk": mean_jerk(truth, fps)}
+        for name, clips in (("generated", raw), ("smoothed", smooth)):
+            positions = np.stack([joint_positions(model, c) for c in clips])
+            beats = [_beat_row(p, onsets, fps, duration) for p in positions]
+            row[name] = {
+                "l1": float(np.mean([l1_distance(p, truth) for p in positions])),
+                "pck": float(np.mean([pck(p, truth, pck_threshold) for p in positions])),
+                "bc": float(np.mean([b["bc"] for b in beats])),
+                "bc_shifted": float(np.mean([b["bc_shifted"] for b in beats])),
+                "diversity": diversity(positions, clip) if samples * ((end - begin) // clip) >= 2 else None,
+                "jerk": mean_jerk(positions, fps),
+            }
+            row[name]["jerk_over_truth"] = row[name]["jerk"] / row["truth"]["jerk"]
+        row["seconds_per_frame"] = elapsed / (end - begin)  # all `samples` streams generated together
+        write_clips(
+            out_dir / take.name,
+            take.name,
+            model,
+            [truth_features, smooth[0], raw[0]],
+            ["truth", "smoothed", "generated"],
+        )
+        rows.append(row)
+    report = {
+        "checkpoint": str(ckpt),
+        "samples": samples,
+        "seed": seed,
+        "pck_threshold": pck_threshold,
+        "beat_sigma_s": BEAT_SIGMA,
+        "shift_s": SHIFT_SECONDS,
+        "clip_seconds": clip_seconds,
+        "takes": rows,
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+def _beat_row(positions: np.ndarray, onsets: np.ndarray, fps: float, duration: float) -> dict:
+    beats = motion_beats(positions, fps)
+    return {
+        "bc": beat_consistency(beats, onsets),
+        "bc_shifted": beat_consistency(shift_beats(beats, SHIFT_SECONDS, duration), onsets),
+        "beats": len(beats),
+    }
+
+
+# ---------------------------------------------------------------- training callback
+
+
+class GestureSamples(L.Callback):
+    """Every N epochs: a sample of the first take's held-out audio as BVH + GIF into the MLflow run.
+
+    Logged as `samples/epoch_NNNN/<take>.bvh` and `.gif`, always from the same seed, so successive
+    epochs can be compared.
+    """
+
+    def __init__(self, every_n_epochs: int = 10, seconds: float = 10.0, seed: int = 0):
+        self.every_n_epochs, self.seconds, self.seed = every_n_epochs, seconds, seed
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
+        epoch = trainer.current_epoch + 1
+        if trainer.sanity_checking or epoch % self.every_n_epochs or not trainer.is_global_zero:
+            return
+        self.write(pl_module, trainer.datamodule, trainer.logger, f"samples/epoch_{epoch:04d}")
+
+    def write(
+        self, pl_module, datamodule, logger, artifact_dir: str, folder: Path | None = None
+    ) -> list[Path]:
+        take = datamodule.load_takes()[0]
+        begin, end = datamodule.split_frames(take, "test")
+        end = min(end, begin + round(self.seconds * pl_module.spec["fps"]))
+        was_training = pl_module.training
+        pl_module.eval()
+        clip = synthesize(pl_module, take.audio[begin:end], 1, self.seed, smooth=True)[0]
+        pl_module.train(was_training)
+        with tempfile.TemporaryDirectory() as tmp:
+            files = write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
+            for path in files:
+                log_file(logger, path, artifact_dir)
+            return files if folder else []
