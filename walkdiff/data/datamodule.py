@@ -86,6 +86,19 @@ class EpochShuffle(Sampler[int]):
         return self.size
 
 
+def window_loader(data: Dataset, batch_size: int, shuffle: bool, num_workers: int) -> DataLoader:
+    """The DataLoader every walkdiff data module uses: epoch-seeded shuffling for training."""
+    seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
+    return DataLoader(
+        data,
+        batch_size=batch_size,
+        sampler=EpochShuffle(len(data), seed) if shuffle else None,
+        drop_last=shuffle and len(data) >= batch_size,  # never an empty training loader
+        num_workers=num_workers,
+        persistent_workers=num_workers > 0,
+    )
+
+
 class MotionDataModule(L.LightningDataModule):
     """Windows of motion features with style and content labels.
 
@@ -204,16 +217,7 @@ class MotionDataModule(L.LightningDataModule):
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         self.setup()
-        data = self.datasets[split]
-        seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
-        return DataLoader(
-            data,
-            batch_size=self.hparams.batch_size,
-            sampler=EpochShuffle(len(data), seed) if shuffle else None,
-            drop_last=shuffle,
-            num_workers=self.hparams.num_workers,
-            persistent_workers=self.hparams.num_workers > 0,
-        )
+        return window_loader(self.datasets[split], self.hparams.batch_size, shuffle, self.hparams.num_workers)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +26,7 @@ import roma
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from walkdiff.data.datamodule import EpochShuffle
+from walkdiff.data.datamodule import window_loader
 from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.representation import Normalizer
@@ -414,16 +413,7 @@ class SpeechDataModule(L.LightningDataModule):
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         self.setup()
-        data = self.datasets[split]
-        seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
-        return DataLoader(
-            data,
-            batch_size=self.hparams.batch_size,
-            sampler=EpochShuffle(len(data), seed) if shuffle else None,
-            drop_last=shuffle and len(data) >= self.hparams.batch_size,
-            num_workers=self.hparams.num_workers,
-            persistent_workers=self.hparams.num_workers > 0,
-        )
+        return window_loader(self.datasets[split], self.hparams.batch_size, shuffle, self.hparams.num_workers)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)
