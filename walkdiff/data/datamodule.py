@@ -99,7 +99,26 @@ def window_loader(data: Dataset, batch_size: int, shuffle: bool, num_workers: in
     )
 
 
-class MotionDataModule(L.LightningDataModule):
+class WindowLoaders(L.LightningDataModule):
+    """train/val/test loaders over `self.datasets[split]`, for data modules with batch_size/num_workers."""
+
+    datasets: dict[str, Dataset]
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        self.setup()
+        return window_loader(self.datasets[split], self.hparams.batch_size, shuffle, self.hparams.num_workers)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+
+class MotionDataModule(WindowLoaders):
     """Windows of motion features with style and content labels.
 
     Args:
@@ -214,16 +233,3 @@ class MotionDataModule(L.LightningDataModule):
                 raise WalkdiffError(
                     f"the {split} split has no {h.window}-frame windows; use a shorter data.window"
                 )
-
-    def _loader(self, split: str, shuffle: bool) -> DataLoader:
-        self.setup()
-        return window_loader(self.datasets[split], self.hparams.batch_size, shuffle, self.hparams.num_workers)
-
-    def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)

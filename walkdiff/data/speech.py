@@ -20,13 +20,12 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import roma
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import Dataset
 
-from walkdiff.data.datamodule import window_loader
+from walkdiff.data.datamodule import WindowLoaders
 from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.representation import Normalizer
@@ -281,7 +280,7 @@ class SequenceDataset(Dataset):
         }
 
 
-class SpeechDataModule(L.LightningDataModule):
+class SpeechDataModule(WindowLoaders):
     """BVH + WAV takes -> training sequences for DiffMotion.
 
     Args:
@@ -410,16 +409,3 @@ class SpeechDataModule(L.LightningDataModule):
                     f"the {split} part of the takes has no {h.window}-frame sequences; shorten data.window"
                 )
         log.info(f"speech: {len(self.datasets['train'])} training sequences of {h.window} frames")
-
-    def _loader(self, split: str, shuffle: bool) -> DataLoader:
-        self.setup()
-        return window_loader(self.datasets[split], self.hparams.batch_size, shuffle, self.hparams.num_workers)
-
-    def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)
