@@ -18,6 +18,7 @@ import torch
 
 from walkdiff.cli import main
 from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.errors import WalkdiffError
 from walkdiff.generation import (
     Sampling,
     generate_long,
@@ -25,9 +26,11 @@ from walkdiff.generation import (
     load_generator,
     noised_steps,
     parse_style,
+    resolve_windows,
     restyle,
     seam_steps,
     window_plan,
+    windowed,
 )
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 from walkdiff.motion.bvh import read_bvh, write_bvh
@@ -80,11 +83,27 @@ def test_window_plan_covers_every_frame_once_with_the_overlap_known(frames, over
 
 
 def test_window_plan_rejects_bad_overlap():
-    from walkdiff.errors import WalkdiffError
-
     for overlap in (0, 24):
         with pytest.raises(WalkdiffError, match="overlap must be in"):
             window_plan(100, 24, overlap)
+
+
+def test_windowed_holds_then_crossfades_the_shared_frames():
+    calls = []
+
+    def denoise(start, stop, inpaint):  # window k is all k, except where it is held
+        calls.append(inpaint)
+        out = torch.full((1, stop - start, 1), float(len(calls)))
+        return out if inpaint is None else torch.where(inpaint[0], inpaint[1], out)
+
+    x = windowed(1, 40, 1, 24, 8, denoise, blend=4)[0, :, 0]  # windows at 0 and 16
+    assert calls[1][0][0, :, 0].tolist() == [True] * 4 + [False] * 20
+    assert x[:20].tolist() == [1.0] * 20
+    torch.testing.assert_close(x[20:24], torch.tensor([1.2, 1.4, 1.6, 1.8]))
+    assert x[24:].tolist() == [2.0] * 16
+    assert resolve_windows(24, None, None) == (8, 4)
+    with pytest.raises(WalkdiffError, match="--blend must be in \\[0, 7\\]"):
+        resolve_windows(24, 8, 8)
 
 
 def test_parse_style_ids_mixes_and_errors(model):
@@ -94,7 +113,6 @@ def test_parse_style_ids_mixes_and_errors(model):
     styles = list(model.spec["styles"])
     assert mix.sum().item() == pytest.approx(1.0) and label == "angry50+old50"
     assert mix[styles.index("angry")] == mix[styles.index("old")] == pytest.approx(0.5)
-    from walkdiff.errors import WalkdiffError
 
     with pytest.raises(WalkdiffError, match="unknown style happy; valid: angry, childlike"):
         parse_style(model, "happy:1,old:1")
@@ -116,11 +134,16 @@ def test_long_motion_has_no_seams_and_a_continuous_root(model):
     style = torch.tensor([0, 4] * 4)
     content = torch.zeros(8, dtype=torch.long)
     generator = torch.Generator().manual_seed(0)
-    x = generate_long(model, style, content, frames, Sampling("ddim", 3), generator, overlap)
+    x = generate_long(model, style, content, frames, Sampling("ddim", 3), generator, overlap, blend=0)
     assert x.shape == (8, frames, model.spec["feature_dim"]) and torch.isfinite(x).all()
     seams = seam_steps(frames, window, overlap)  # steps from the last known frame of a window to a new one
     assert seams == [23, 39, 55, 71]
     assert seams_within_spread(joint_speeds(model, x), seams)
+    # Cross-faded: the first 4 shared frames held, the next 4 faded; the seam is those 5 steps.
+    faded = generate_long(model, style, content, frames, Sampling("ddim", 3), generator, overlap, blend=4)
+    fade_seams = seam_steps(frames, window, overlap, blend=4)
+    assert fade_seams[:5] == [19, 20, 21, 22, 23] and len(fade_seams) == 20
+    assert seams_within_spread(joint_speeds(model, faded), fade_seams)
     # The check can fail: the new part of each window decoded on its own starts back at the origin.
     pieces = [model.to_raw(x[:, : seams[0] + 1])] + [
         model.to_raw(x[:, a + 1 : b + 1]) for a, b in zip(seams, seams[1:] + [frames - 1])
@@ -158,7 +181,6 @@ def test_noised_steps_start_at_strength():
     assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 0, 60, 1.0)
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling("ddim", 10, eta=0.5))
     assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 0, 6, 0.5)
-    from walkdiff.errors import WalkdiffError
 
     with pytest.raises(WalkdiffError, match="strength"):
         noised_steps(Fake, 0.0, Sampling())

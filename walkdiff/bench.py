@@ -24,12 +24,9 @@ def machine() -> dict:
     }
 
 
-def write_json(path: str | Path, result: dict) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(tmp, path)
+def report(out: str | Path, result: dict) -> None:
+    """Write a benchmark's JSON (atomically) and show it."""
+    report(out, result)
     print(json.dumps(result, indent=2))
 
 
@@ -75,7 +72,7 @@ def bench_data(out: str, dataset: str = "xia", root: str | None = None, repeats:
         "dataloader_windows_per_s_median": round(windows / statistics.median(epoch_times)),
         "machine": machine(),
     }
-    write_json(out, result)
+    report(out, result)
     return result
 
 
@@ -184,7 +181,7 @@ def bench_train(
         "seconds_per_batch_median": round(statistics.median(lightning_s) / batches, 3),
         "machine": machine(),
     }
-    write_json(out, result)
+    report(out, result)
     return result
 
 
@@ -200,19 +197,29 @@ def _median_seconds(fn, repeats: int) -> float:
     return statistics.median(times)
 
 
-def _seam_speeds(model, x: torch.Tensor, overlap: int) -> dict:
-    """Mean joint speed (units/s) at the window seams of long samples against the steps inside windows."""
+def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
+    """Joint speeds (units/s) at the window seams of long samples against the steps inside windows.
+
+    A seam is every step from a window's last held frame through its cross-fade. `within_spread` is the
+    test's criterion: the seams' mean speed within the inside mean + 2 sd, and their maximum within the
+    inside maximum.
+    """
     from walkdiff.generation import joint_speeds, seam_steps
 
     speed = joint_speeds(model, x)
-    seams = seam_steps(x.shape[1], model.spec["window"], overlap)
+    seams = seam_steps(x.shape[1], model.spec["window"], overlap, blend)
     inside = torch.ones(speed.shape[1], dtype=torch.bool)
     inside[seams] = False
-    quantiles = speed[:, inside].quantile(torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64))
+    inner, at_seams = speed[:, inside], speed[:, seams]
+    quantiles = inner.quantile(torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64))
     return {
-        "seam_mean": round(float(speed[:, seams].mean()), 3),
-        "inside_mean": round(float(speed[:, inside].mean()), 3),
+        "seam_mean": round(float(at_seams.mean()), 3),
+        "seam_p95": round(float(at_seams.quantile(0.95)), 3),
+        "inside_mean": round(float(inner.mean()), 3),
         "inside_p05_p50_p95": [round(float(q), 3) for q in quantiles],
+        "within_spread": bool(
+            at_seams.mean() <= inner.mean() + 2 * inner.std() and at_seams.max() <= inner.max()
+        ),
     }
 
 
@@ -257,8 +264,11 @@ def _plot_quality(path: Path, rows: list[dict]) -> None:
         (axes[0], "fmd", "FMD (lower is better)"),
         (axes[1], "style_acc", "style accuracy"),
     ):
-        ddim = [r for r in rows if r["sampler"] == "ddim"]
+        ddim = [r for r in rows if r["sampler"] == "ddim" and r["eta"] == 0]
         ax.plot([r["steps"] for r in ddim], [r[key] for r in ddim], "o-", label="DDIM (eta 0)")
+        for r in rows:
+            if r["sampler"] == "ddim" and r["eta"] > 0:
+                ax.plot([r["steps"]], [r[key]], "^", label=f"DDIM (eta {r['eta']})")
         for r in rows:
             if r["sampler"] == "ddpm":
                 ax.plot([r["steps"]], [r[key]], "s", color="C3", label="DDPM")
@@ -300,7 +310,7 @@ def bench_sample(
         window_set,
     )
     from walkdiff.footfix import fix_feet_features
-    from walkdiff.generation import Sampling, default_overlap, generate_long, load_generator
+    from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
 
     model = load_generator(ckpt)
     dm = MotionDataModule(**data_settings(torch.load(ckpt, map_location="cpu", weights_only=False)))
@@ -316,18 +326,20 @@ def bench_sample(
         return {k: round(values[k], 4) for k in keys}
 
     quality, generated = [], {}
-    configs = [("ddpm", model.diffusion.num_timesteps)]
-    configs += [("ddim", k) for k in ddim_steps]
-    for sampler, steps in configs:
+    # DDIM at eta 0 over the step counts, and at 10 steps with some of DDPM's noise put back (eta > 0).
+    configs = [("ddpm", model.diffusion.num_timesteps, 1.0)]
+    configs += [("ddim", k, 0.0) for k in ddim_steps] + [("ddim", 10, eta) for eta in (0.5, 1.0)]
+    for sampler, steps, eta in configs:
         generator = torch.Generator().manual_seed(seed)
         start = time.perf_counter()
         windows = generate_windows(
-            model, num, content_ids, generator, batch_size=num, sampler=sampler, steps=steps
+            model, num, content_ids, generator, batch_size=num, sampler=sampler, steps=steps, eta=eta
         )
         elapsed = time.perf_counter() - start
-        generated[sampler, steps] = windows
-        quality.append({"sampler": sampler, "steps": steps, **scored(windows), "seconds": round(elapsed, 2)})
-        print(f"{sampler}-{steps}: {quality[-1]}", flush=True)
+        generated[sampler, steps, eta] = windows
+        row = {"sampler": sampler, "steps": steps, "eta": eta}
+        quality.append(row | scored(windows) | {"seconds": round(elapsed, 2)})
+        print(f"{sampler}-{steps} eta {eta}: {quality[-1]}", flush=True)
     # What a second seed alone changes: the noise floor of these numbers.
     windows = generate_windows(model, num, content_ids, torch.Generator().manual_seed(seed + 1), num)
     ddpm_other_seed = scored(windows)
@@ -336,7 +348,7 @@ def bench_sample(
     )
 
     # Foot clean-up on the DDPM windows, scored the same way.
-    ddpm = generated["ddpm", configs[0][1]]
+    ddpm = generated[configs[0]]
     contacts = dataset_module(spec["dataset"]).CONTACTS
     fixed_raw = torch.from_numpy(fix_feet_features(ddpm.raw.numpy(), model.skeleton, spec["fps"], contacts))
     fix_feet = {"before": quality[0], "after": scored(replace(ddpm, raw=fixed_raw))}
@@ -357,8 +369,7 @@ def bench_sample(
     with torch.no_grad():
         forward_s = _median_seconds(lambda: [net(x, t, style, content) for _ in range(10)], repeats) / 10
     long_frames = 300
-    overlap = default_overlap(window)
-    long_x = generate_long(model, style, content, long_frames, Sampling("ddim", 10))
+    generate_long(model, style, content, long_frames, Sampling("ddim", 10))  # warm-up
     long_s = _median_seconds(
         lambda: generate_long(model, style, content, long_frames, Sampling("ddim", 10)), 1
     )
@@ -381,10 +392,22 @@ def bench_sample(
         "step_over_forward": round(batch_s / 10 / forward_s, 3),
         f"batch1_latency_{two_seconds}_frames": latency,
     }
-    ddpm_long = generate_long(
-        model, style, content, long_frames, Sampling(), torch.Generator().manual_seed(seed)
-    )
-    seams = {"ddim10": _seam_speeds(model, long_x, overlap), "ddpm": _seam_speeds(model, ddpm_long, overlap)}
+    # Seams of 300-frame samples: held overlap only (blend 0) against cross-fades, DDPM and DDIM-10.
+    seams = {}
+    for overlap, blend in ((None, 0), (None, None), (12, None)):
+        overlap, blend = resolve_windows(window, overlap, blend)
+        for name, sampling in (("ddpm", Sampling()), ("ddim10", Sampling("ddim", 10))):
+            x = generate_long(
+                model,
+                style,
+                content,
+                long_frames,
+                sampling,
+                torch.Generator().manual_seed(seed),
+                overlap,
+                blend,
+            )
+            seams[f"{name}_overlap{overlap}_blend{blend}"] = _seam_speeds(model, x, overlap, blend)
 
     # Transfer: every walking test clip to every other style, noised to `strength`, DDPM from there.
     transfer = {"strength": strength, "real_test_style_acc": real["style_acc"]}
@@ -421,7 +444,7 @@ def bench_sample(
         "machine": machine(),
     }
     out_dir = Path(out)
-    write_json(out_dir / "sample.json", result)
+    report(out_dir / "sample.json", result)
     _plot_quality(out_dir / "sample.png", quality)
     return result
 
@@ -465,7 +488,7 @@ def bench_gesture(out: str, ckpt: str | None = None, frames: int = 40, repeats: 
     result["frames_per_second_16_streams_N100"] = round(16 * frames / batched, 1)
     result["target_seconds_per_frame_N100"] = 0.05
     result["machine"] = machine()
-    write_json(out, result)
+    report(out, result)
     return result
 
 
@@ -480,3 +503,7 @@ def run(args) -> None:
         )
     elif args.what == "gesture":
         bench_gesture(args.out, args.ckpt, args.frames)
+    elif args.what == "walk":
+        from walkdiff.walk import bench_walk
+
+        print(json.dumps(bench_walk(args.out, args.ckpt, args.evaluator, args.seed), indent=2))

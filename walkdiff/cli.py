@@ -113,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--eta", type=float, default=0.0, help="DDIM noise (0: deterministic)")
         p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance (1: none)")
         p.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows")
+        p.add_argument("--blend", type=int, default=None, help="of those, frames cross-faded (default: half)")
         p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
         p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
         p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -136,6 +137,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=int, default=1, help="samples generated together (default 1)")
+
+    p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
+    p.add_argument("--ckpt", required=True, help="PathWalker checkpoint (conf/walk_xia.yaml)")
+    p.add_argument("--style", required=True, help="walking style, e.g. proud")
+    p.add_argument("--path", required=True, help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}')
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--speed", type=float, default=None, help="units/s (default: the file's, or the style's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     # Its own verb: `evaluate` is the walking protocol (an evaluator network, FMD, style accuracy);
     # none of its options apply to gestures, which are scored against the held-out motion itself.
@@ -167,6 +178,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
     b.add_argument("--frames", type=int, default=40, help="frames timed per setting (default 40)")
+    b = bench.add_parser("walk", help="path-following error and style accuracy of walks along test paths")
+    b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")
+    b.add_argument("--out", required=True, help="JSON file; the plot goes next to it as .png")
+    b.add_argument("--seed", type=int, default=0)
     b = bench.add_parser("sample", help="FMD/style accuracy vs sampling steps, speed, --fix-feet, transfer")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
@@ -230,6 +246,12 @@ def run_command(args: argparse.Namespace) -> int:
         else:
             gesture.evaluate_gesture(**options)
             print(f"wrote {args.out}/report.json")
+    elif args.command == "walk":
+        from walkdiff.walk import walk
+
+        options = vars(args).copy()
+        del options["command"]
+        print(json.dumps(walk(**options), indent=2))
     elif args.command == "bench":
         from walkdiff import bench
 

@@ -18,10 +18,8 @@ better estimates of the feature mean and covariance than the training stride wou
 from __future__ import annotations
 
 import inspect
-import json
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,6 +32,7 @@ from tqdm import tqdm
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.datasets import dataset_module
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import write_json, write_text
 from walkdiff.metrics import (
     Diversity,
     FootSkating,
@@ -245,12 +244,7 @@ def load_evaluator(path: str | Path, device: str | torch.device = "cpu"):
     )
     module, name = class_path.rsplit(".", 1)
     evaluator_class = getattr(importlib.import_module(module), name)
-    evaluator = evaluator_class.load_from_checkpoint(path, map_location="cpu", weights_only=False)
-    if evaluator.skeleton is None:
-        raise WalkdiffError(
-            "the evaluator checkpoint has no skeleton; was it saved by `walkdiff fit`?", path=path
-        )
-    return evaluator.to(device).eval()
+    return evaluator_class.from_trained(path, "evaluator", device)
 
 
 def data_settings(checkpoint: dict, **overrides) -> dict:
@@ -261,12 +255,6 @@ def data_settings(checkpoint: dict, **overrides) -> dict:
     settings |= {k: v for k, v in overrides.items() if v is not None}
     accepted = inspect.signature(MotionDataModule).parameters
     return {k: v for k, v in settings.items() if k in accepted}
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------- the command
@@ -437,8 +425,8 @@ def format_report(report: dict) -> str:
 
 def write_reports(report: dict, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    _atomic_write(out / "report.json", json.dumps(report, indent=2, ensure_ascii=False) + "\n")
-    _atomic_write(out / "report.md", format_report(report))
+    write_json(out / "report.json", report)
+    write_text(out / "report.md", format_report(report))
 
 
 def log_to_mlflow(report: dict, out: Path, experiment: str) -> None:

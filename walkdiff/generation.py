@@ -13,8 +13,6 @@ root velocity and turning channels with the source's, so the restyled clip walks
 
 from __future__ import annotations
 
-import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -26,6 +24,7 @@ import torch
 from walkdiff.data.datasets import dataset_module
 from walkdiff.diffusion import respace, run_steps, step_coefficients
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import write_json
 from walkdiff.footfix import fix_feet
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -107,9 +106,13 @@ def window_plan(frames: int, window: int, overlap: int) -> list[tuple[int, int]]
     return plan
 
 
-def seam_steps(frames: int, window: int, overlap: int) -> list[int]:
-    """Frame steps (t -> t + 1, by t) that cross from a window's known frames into its new ones."""
-    return [start + known - 1 for start, known in window_plan(frames, window, overlap)[1:]]
+def seam_steps(frames: int, window: int, overlap: int, blend: int = 0) -> list[int]:
+    """Frame steps (t -> t + 1, by t) from a window's last held frame through its cross-fade."""
+    return [
+        start + known - blend - 1 + k
+        for start, known in window_plan(frames, window, overlap)[1:]
+        for k in range(min(blend, known - 1) + 1)
+    ]
 
 
 def joint_speeds(model, x: torch.Tensor) -> torch.Tensor:
@@ -120,9 +123,19 @@ def joint_speeds(model, x: torch.Tensor) -> torch.Tensor:
     return (positions[:, 1:] - positions[:, :-1]).norm(dim=-1).mean(-1) * model.spec["fps"]
 
 
-def default_overlap(window: int) -> int:
-    """A third of the window: enough context for the next one to continue the gait, most of it new."""
-    return max(1, window // 3)
+def resolve_windows(window: int, overlap: int | None, blend: int | None) -> tuple[int, int]:
+    """The overlap (default a third of the window: enough context for the next window to continue the
+    gait, most of it new) and the cross-fade (default half the overlap; `walkdiff bench sample` measures
+    the seams of both), checked."""
+    overlap = overlap or max(1, window // 3)
+    if not 0 < overlap < window:
+        raise WalkdiffError(
+            f"--overlap must be in [1, {window - 1}] for {window}-frame windows, got {overlap}"
+        )
+    blend = overlap // 2 if blend is None else blend
+    if not 0 <= blend < overlap:
+        raise WalkdiffError(f"--blend must be in [0, {overlap - 1}] (less than the overlap), got {blend}")
+    return overlap, blend
 
 
 def windowed(
@@ -132,17 +145,29 @@ def windowed(
     window: int,
     overlap: int,
     denoise: Callable[[int, int, Known | None], torch.Tensor],
+    blend: int = 0,
 ) -> torch.Tensor:
-    """(B, frames, D) made window by window; denoise(start, stop, known) returns the window [start, stop)."""
+    """(B, frames, D) made window by window; denoise(start, stop, known) returns the window [start, stop).
+
+    Of the frames a window shares with what exists, the first are held (inpainted) and the last `blend`
+    are made anew and cross-faded from the old frames to the new ones, so the step where the window's
+    own motion takes over is spread over `blend` frames.
+    """
     out = torch.zeros(batch, frames, dim)
     for start, known in window_plan(frames, window, overlap):
         stop = start + min(window, frames)
-        inpaint = None
-        if known:
-            mask = torch.zeros(batch, stop - start, dim, dtype=torch.bool)
-            mask[:, :known] = True
-            inpaint = (mask, out[:, start:stop].clone())
-        out[:, start:stop] = denoise(start, stop, inpaint).float().cpu()
+        if not known:
+            out[:, start:stop] = denoise(start, stop, None).float().cpu()
+            continue
+        fade = min(blend, known - 1)
+        held = known - fade
+        mask = torch.zeros(batch, stop - start, dim, dtype=torch.bool)
+        mask[:, :held] = True
+        new = denoise(start, stop, (mask, out[:, start:stop].clone())).float().cpu()
+        weight = torch.arange(1, fade + 1, dtype=new.dtype).div(fade + 1)[:, None]
+        old = out[:, start + held : start + known]
+        out[:, start + held : start + known] = old + weight * (new[:, held:known] - old)
+        out[:, start + known : stop] = new[:, known:]
     return out
 
 
@@ -154,6 +179,7 @@ def generate_long(
     sampling: Sampling = Sampling(),
     generator: torch.Generator | None = None,
     overlap: int | None = None,
+    blend: int | None = None,
 ) -> torch.Tensor:
     """Normalised features (B, frames, D) of any length from a model whose `generate` makes windows."""
     window = model.spec["window"]
@@ -171,8 +197,8 @@ def generate_long(
             inpaint=inpaint,
         )
 
-    overlap = overlap or default_overlap(window)
-    return windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise)
+    overlap, blend = resolve_windows(window, overlap, blend)
+    return windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise, blend)
 
 
 def noised_steps(model, strength: float, sampling: Sampling) -> tuple[int, list[int], float]:
@@ -198,6 +224,7 @@ def restyle(
     generator: torch.Generator | None = None,
     keep_trajectory: bool = False,
     overlap: int | None = None,
+    blend: int | None = None,
 ) -> torch.Tensor:
     """Normalised source features (B, F, D) noised to strength·T and denoised under `style` and `content`."""
     diffusion = model.diffusion
@@ -223,9 +250,9 @@ def restyle(
         return run_steps(model_fn, diffusion, None, table, generator=generator, x_T=x_t, inpaint=inpainted)
 
     window = model.spec["window"]
-    overlap = overlap or default_overlap(window)
+    overlap, blend = resolve_windows(window, overlap, blend)
     batch, frames, dim = source.shape
-    return windowed(batch, frames, dim, window, overlap, denoise)
+    return windowed(batch, frames, dim, window, overlap, denoise, blend)
 
 
 # ---------------------------------------------------------------- files
@@ -235,13 +262,7 @@ def load_generator(path: str | Path, device: str = "cpu"):
     """A trained StyledMotionDiffusion with the skeleton it writes BVH on."""
     from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
-    path = Path(path)
-    if not path.is_file():
-        raise WalkdiffError("generator checkpoint not found", path=path)
-    model = StyledMotionDiffusion.load_from_checkpoint(path, map_location="cpu", weights_only=False)
-    if model.skeleton is None:
-        raise WalkdiffError("the checkpoint has no skeleton; was it saved by `walkdiff fit`?", path=path)
-    return model.to(device).eval()
+    return StyledMotionDiffusion.from_trained(path, "generator", device)
 
 
 def skeleton_mismatch(found: Skeleton, expected: Skeleton) -> list[str]:
@@ -271,12 +292,6 @@ def _check_free(paths: list[Path], overwrite: bool) -> None:
     if taken and not overwrite:
         more = f" and {len(taken) - 3} more" if len(taken) > 3 else ""
         raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}{more}; pass --overwrite to replace them")
-
-
-def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
 
 
 def _finish(model, raw: np.ndarray, start: tuple[np.ndarray, float] | None, feet: bool) -> Motion:
@@ -319,6 +334,7 @@ def sample(
     eta: float = 0.0,
     guidance: float = 1.0,
     overlap: int | None = None,
+    blend: int | None = None,
     fix_feet: bool = False,
     gif: bool = True,
     overwrite: bool = False,
@@ -336,12 +352,13 @@ def sample(
     manifest_path = out / "manifest.json"
     bvh = [out / f"{n}.bvh" for n in names]
     _check_free(bvh + [p.with_suffix(".gif") for p in bvh if gif] + [manifest_path], overwrite)
-    window_plan(frames, model.spec["window"], overlap or default_overlap(model.spec["window"]))
+    overlap, blend = resolve_windows(model.spec["window"], overlap, blend)
+    window_plan(frames, model.spec["window"], overlap)
 
     generator = torch.Generator(device=model.device).manual_seed(seed)
     started = time.perf_counter()
     x = generate_long(
-        model, _batch(style_label, num), _batch(content_id, num), frames, sampling, generator, overlap
+        model, _batch(style_label, num), _batch(content_id, num), frames, sampling, generator, overlap, blend
     )
     generated = time.perf_counter() - started
     raw = model.to_raw(x)
@@ -358,7 +375,8 @@ def sample(
             "frames": frames,
             "fps": model.spec["fps"],
             **asdict(sampling),
-            "overlap": overlap or default_overlap(model.spec["window"]),
+            "overlap": overlap,
+            "blend": blend,
             "fix_feet": fix_feet,
         },
         "seed": seed,
@@ -369,7 +387,7 @@ def sample(
             "generated_frames_per_s": round(num * frames / generated, 1),
         },
     }
-    _write_json(manifest_path, manifest)
+    write_json(manifest_path, manifest)
     return manifest
 
 
@@ -387,6 +405,7 @@ def transfer(
     eta: float = 0.0,
     guidance: float = 1.0,
     overlap: int | None = None,
+    blend: int | None = None,
     fix_feet: bool = False,
     gif: bool = True,
     overwrite: bool = False,
@@ -398,6 +417,7 @@ def transfer(
     style_label, label = parse_style(model, style)
     content_id = model.label_ids([content], "content")[0]
     noised_steps(model, strength, sampling)  # bad strength fails before any work
+    overlap, blend = resolve_windows(model.spec["window"], overlap, blend)
     input = Path(input)
     motion = read_bvh(input)
     problems = skeleton_mismatch(motion.skeleton, model.skeleton)
@@ -419,7 +439,7 @@ def transfer(
     started = time.perf_counter()
     x = restyle(
         model, source, _batch(style_label, 1), _batch(content_id, 1), strength, sampling, generator,
-        keep_trajectory, overlap,
+        keep_trajectory, overlap, blend,
     )  # fmt: skip
     elapsed = time.perf_counter() - started
     result = _finish(model, model.to_raw(x)[0], start_pose(motion), fix_feet)
@@ -437,7 +457,8 @@ def transfer(
             "frames": motion.num_frames,
             "fps": fps,
             **asdict(sampling),
-            "overlap": overlap or default_overlap(model.spec["window"]),
+            "overlap": overlap,
+            "blend": blend,
             "fix_feet": fix_feet,
         },
         "seed": seed,
@@ -445,7 +466,7 @@ def transfer(
         "root_path_error": root_path_error(motion, result),
         "timing": {"restyle_s": round(elapsed, 3)},
     }
-    _write_json(report_path, report)
+    write_json(report_path, report)
     return report
 
 

@@ -48,20 +48,10 @@ SHIFT_SECONDS = 2.0  # the audio-blind baseline of beat consistency
 def load_model(path: str | Path, device: str | torch.device = "cpu"):
     from walkdiff.models.diffmotion import DiffMotion
 
-    path = Path(path)
-    if not path.is_file():
-        raise WalkdiffError("DiffMotion checkpoint not found", path=path)
-    try:
-        model = DiffMotion.load_from_checkpoint(path, map_location="cpu", weights_only=False)
-    except (KeyError, RuntimeError, TypeError) as error:
-        raise WalkdiffError(
-            f"not a DiffMotion checkpoint ({type(error).__name__}: {error})", path=path
-        ) from None
-    if model.skeleton is None or model.neutral is None:
-        raise WalkdiffError(
-            "the checkpoint has no skeleton / neutral pose; was it saved by `walkdiff fit`?", path=path
-        )
-    return model.to(device).eval()
+    model = DiffMotion.from_trained(path, "DiffMotion", device)
+    if model.neutral is None:
+        raise WalkdiffError("the checkpoint has no neutral pose; was it saved by `walkdiff fit`?", path=path)
+    return model
 
 
 def synthesize(model, audio: np.ndarray, streams: int = 1, seed: int = 0, smooth: bool = False) -> np.ndarray:

@@ -9,10 +9,8 @@ straight into a palette ("P") image, which needs no colour quantisation and keep
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -21,6 +19,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import write_atomic
 
 Color = tuple[int, int, int]
 
@@ -90,7 +89,7 @@ def render_gif(
     def save(f: IO[bytes]) -> None:
         frames[0].save(f, format="GIF", save_all=True, append_images=frames[1:], duration=delays, loop=0)
 
-    return _write_atomic(path, save)
+    return write_atomic(path, save)
 
 
 def render_png(
@@ -119,7 +118,7 @@ def render_png(
         for col, source in enumerate(picks):
             title = f"frame {source}" if titles is None else f"{titles[i]}  frame {source}"
             image.paste(scene.panel(i, int(source), title), (col * size[0], i * size[1]))
-    return _write_atomic(path, lambda f: image.save(f, format="PNG", optimize=False))
+    return write_atomic(path, lambda f: image.save(f, format="PNG", optimize=False))
 
 
 def _check_clips(
@@ -354,19 +353,3 @@ class _Scene:
         """Root-relative world points (..., 3), Y above the clip's lowest point, to panel pixels (..., 2)."""
         right, up, _ = _project(points)
         return np.stack([self.origin[0] + right * self.scale, self.origin[1] - up * self.scale], axis=-1)
-
-
-def _write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
-    """Write through a temporary file in the target folder, so readers never see a partial image."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            save(f)
-        os.chmod(temp, 0o644)  # mkstemp creates 0600; previews are meant to be shared
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
-    return path

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict
+from pathlib import Path
 
 import lightning as L
 
@@ -40,6 +41,27 @@ class MotionModule(L.LightningModule):
             self.normalizer.load_state_dict(datamodule.normalizer.state_dict())
         if self.skeleton is None:
             self.skeleton = datamodule.skeleton
+
+    @classmethod
+    def from_trained(cls, path: str | Path, what: str, device="cpu"):
+        """A trained model for generation or scoring, with clear errors for a missing or wrong file.
+
+        `what` names the model in messages (e.g. "generator").
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise WalkdiffError(f"{what} checkpoint not found", path=path)
+        try:
+            model = cls.load_from_checkpoint(path, map_location="cpu", weights_only=False)
+        except (KeyError, RuntimeError, TypeError) as error:
+            raise WalkdiffError(
+                f"not a {what} checkpoint ({type(error).__name__}: {error})", path=path
+            ) from None
+        if model.skeleton is None:
+            raise WalkdiffError(
+                f"the {what} checkpoint has no skeleton; was it saved by `walkdiff fit`?", path=path
+            )
+        return model.to(device).eval()
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.skeleton is not None:

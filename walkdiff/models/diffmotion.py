@@ -123,7 +123,91 @@ class ATEncoder(nn.Module):
         return self.lstm(torch.cat([previous, audio], dim=-1), state)
 
 
-class DiffMotion(MotionModule):
+class AutoregressiveDiffusion(MotionModule):
+    """DiffMotion's machinery, whatever steers it: the AT-Encoder and the per-frame eps network.
+
+    A subclass turns its control signal into one encoded vector per frame (B, L, control_hidden), and
+    calls `sequence_loss` in its `loss` and `sample_frame` frame after frame in generation.
+    """
+
+    sequence_key = "features"  # the batch entry holding the pose sequences
+
+    def build(
+        self,
+        control_dim: int,
+        hidden: int,
+        lstm_layers: int,
+        control_hidden: int,
+        channels: int,
+        residual_layers: int,
+        dilation_cycle: int,
+        dropout: float,
+        timesteps: int,
+        schedule: str,
+        beta_start: float,
+        beta_end: float,
+    ) -> None:
+        dim = self.spec["feature_dim"]
+        self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, "eps")
+        self.encoder = ATEncoder(dim, control_dim, hidden, lstm_layers, control_hidden, dropout)
+        self.eps_net = EpsNetwork(dim, hidden, channels, residual_layers, dilation_cycle)
+
+    def sequence_loss(self, poses: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
+        """Teacher forcing: the DDPM loss of every frame of (B, L, D) normalised poses in one batch."""
+        b, length, dim = poses.shape
+        previous = torch.cat([poses.new_zeros(b, 1, dim), poses[:, :-1]], dim=1)
+        if self.training and self.hparams.pose_noise > 0:
+            previous = previous + self.hparams.pose_noise * torch.randn_like(previous)
+        h, _ = self.encoder(previous, control)
+        x0 = poses.reshape(b * length, dim)
+        t = self.diffusion.sample_timesteps(b * length)
+        noise = torch.randn_like(x0)
+        x_t = self.diffusion.q_sample(x0, t, noise)
+        eps = self.eps_net(
+            x_t, self.eps_net.embed_steps(t), self.eps_net.condition(h.reshape(b * length, -1))
+        )
+        return F.mse_loss(eps, noise)
+
+    def sampling_tables(self):
+        """The ancestral DDPM steps and the step embeddings, computed once per generation."""
+        steps = step_coefficients(self.diffusion, range(self.diffusion.num_timesteps - 1, -1, -1), eta=1.0)
+        table = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
+        return steps, table
+
+    def sample_frame(self, h: torch.Tensor, tables, generator: torch.Generator | None) -> torch.Tensor:
+        """One normalised pose per row (B, D) for encoder states h (B, hidden): all N denoising steps."""
+        steps, step_table = tables
+        cond = self.eps_net.condition(h)
+
+        def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            return self.eps_net(x, step_table[:, t], cond)
+
+        return run_steps(
+            model_fn, self.diffusion, (h.shape[0], self.spec["feature_dim"]), steps, generator=generator
+        )
+
+    def loss(self, batch: dict) -> torch.Tensor:
+        raise NotImplementedError
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        loss = self.loss(batch)
+        self.log("train/loss", loss, prog_bar=True, batch_size=len(batch[self.sequence_key]))
+        return loss
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        self.log("val/loss", self.loss(batch), prog_bar=True, batch_size=len(batch[self.sequence_key]))
+
+    def configure_optimizers(self):
+        h = self.hparams
+        return torch.optim.AdamW(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
+
+    def configure_gradient_clipping(self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None):
+        self.clip_gradients(optimizer, self.hparams.grad_clip, "norm")
+
+
+class DiffMotion(AutoregressiveDiffusion):
+    sequence_key = "poses"
+
     def __init__(
         self,
         data_spec: SpeechSpec | dict | None = None,
@@ -147,14 +231,22 @@ class DiffMotion(MotionModule):
         self.save_hyperparameters(ignore=["data_spec"])
         self.hparams["data_spec"] = spec = self.spec
         self.window = spec["past"] + 1 + spec["lookahead"]
-        dim = spec["feature_dim"]
         self.audio_normalizer = Normalizer(spec["audio_dim"])
         self.neutral: NeutralPose | None = None
-        self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, "eps")
-        self.encoder = ATEncoder(
-            dim, self.window * spec["audio_dim"], hidden, lstm_layers, audio_hidden, dropout
+        self.build(
+            self.window * spec["audio_dim"],
+            hidden,
+            lstm_layers,
+            audio_hidden,
+            channels,
+            residual_layers,
+            dilation_cycle,
+            dropout,
+            timesteps,
+            schedule,
+            beta_start,
+            beta_end,
         )
-        self.eps_net = EpsNetwork(dim, hidden, channels, residual_layers, dilation_cycle)
 
     # ------------------------------------------------------------ state that travels with the checkpoint
 
@@ -185,35 +277,7 @@ class DiffMotion(MotionModule):
         return audio.unfold(1, self.window, 1).transpose(-1, -2).flatten(2)
 
     def loss(self, batch: dict) -> torch.Tensor:
-        poses = batch["poses"]
-        b, length, dim = poses.shape
-        previous = torch.cat([poses.new_zeros(b, 1, dim), poses[:, :-1]], dim=1)
-        if self.training and self.hparams.pose_noise > 0:
-            previous = previous + self.hparams.pose_noise * torch.randn_like(previous)
-        h, _ = self.encoder(previous, self.encoder.audio(self.control_windows(batch["audio"])))
-        x0 = poses.reshape(b * length, dim)
-        t = self.diffusion.sample_timesteps(b * length)
-        noise = torch.randn_like(x0)
-        x_t = self.diffusion.q_sample(x0, t, noise)
-        eps = self.eps_net(
-            x_t, self.eps_net.embed_steps(t), self.eps_net.condition(h.reshape(b * length, -1))
-        )
-        return F.mse_loss(eps, noise)
-
-    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True, batch_size=batch["poses"].shape[0])
-        return loss
-
-    def validation_step(self, batch: dict, batch_idx: int) -> None:
-        self.log("val/loss", self.loss(batch), prog_bar=True, batch_size=batch["poses"].shape[0])
-
-    def configure_optimizers(self):
-        h = self.hparams
-        return torch.optim.AdamW(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
-
-    def configure_gradient_clipping(self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None):
-        self.clip_gradients(optimizer, self.hparams.grad_clip, "norm")
+        return self.sequence_loss(batch["poses"], self.encoder.audio(self.control_windows(batch["audio"])))
 
     # ------------------------------------------------------------ generation
 
@@ -233,19 +297,12 @@ class DiffMotion(MotionModule):
         padded = torch.cat([audio[:, :1].expand(-1, past, -1), audio, audio[:, -1:].expand(-1, ahead, -1)], 1)
         audio_emb = self.encoder.audio(self.control_windows(padded))
         rows, frames, dim = audio.shape[0], audio.shape[1], self.spec["feature_dim"]
-        steps = step_coefficients(self.diffusion, range(self.diffusion.num_timesteps - 1, -1, -1), eta=1.0)
-        step_table = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
-
+        tables = self.sampling_tables()
         poses = audio.new_zeros(rows, frames, dim)
         previous, state = audio.new_zeros(rows, 1, dim), None
         for f in range(frames):
             h, state = self.encoder(previous, audio_emb[:, f : f + 1], state)
-            cond = self.eps_net.condition(h[:, 0])
-
-            def model_fn(x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor = cond) -> torch.Tensor:
-                return self.eps_net(x, step_table[:, t], cond)
-
-            x = run_steps(model_fn, self.diffusion, (rows, dim), steps, generator=generator)
+            x = self.sample_frame(h[:, 0], tables, generator)
             poses[:, f] = x
             previous = x.unsqueeze(1)
         return self.normalizer.denormalize(poses)

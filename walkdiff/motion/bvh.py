@@ -8,12 +8,12 @@ with the file, the line and what was expected.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import write_text
 from walkdiff.motion.rotations import euler_to_matrix, matrix_to_euler
 from walkdiff.motion.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
@@ -331,11 +331,4 @@ def format_bvh(motion: Motion, precision: int = 6) -> str:
 
 def write_bvh(path: str | Path, motion: Motion, precision: int = 6) -> None:
     """Write atomically: a temporary file in the same folder replaces `path` only once complete."""
-    path = Path(path)
-    text = format_bvh(motion, precision)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8", newline="\n")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_text(path, format_bvh(motion, precision))

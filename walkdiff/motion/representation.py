@@ -157,12 +157,12 @@ def encode(motion: Motion, spec: ContactSpec, forward: Sequence[float] = CMU_FOR
     return features.numpy().astype(np.float32)
 
 
-def _integrate_root(
+def root_trajectory(
     features: torch.Tensor,
-    start_position: Sequence[float] | torch.Tensor | None,
-    start_heading: float | torch.Tensor,
+    start_position: Sequence[float] | torch.Tensor | None = None,
+    start_heading: float | torch.Tensor = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Headings (..., F) and root positions (..., F, 3) by summing the per-frame changes."""
+    """Headings (..., F) and root positions (..., F, 3) by summing the per-frame changes; differentiable."""
     layout = FeatureLayout.from_dim(features.shape[-1])
     zero = torch.zeros_like(features[..., :1, 0])
     start_heading = torch.as_tensor(start_heading, dtype=features.dtype, device=features.device)
@@ -189,7 +189,7 @@ def decode_root(
 
     The root starts at `start_position` (x, z), by default the origin, facing `start_heading`.
     """
-    return _integrate_root(features, start_position, start_heading)[1]
+    return root_trajectory(features, start_position, start_heading)[1]
 
 
 def _local_rotations(features: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
@@ -209,7 +209,7 @@ def features_to_positions(
     start_heading: float | torch.Tensor = 0.0,
 ) -> torch.Tensor:
     """World joint positions (..., F, J, 3) from features (..., F, D) and offsets (J, 3); differentiable."""
-    heading, root = _integrate_root(features, start_position, start_heading)
+    heading, root = root_trajectory(features, start_position, start_heading)
     rotations = _local_rotations(features, heading)
     offsets = skeleton_offsets.to(features.dtype).expand(*root.shape[:-1], -1, 3)
     positions = torch.cat([root.unsqueeze(-2), offsets[..., 1:, :]], dim=-2)
@@ -234,7 +234,7 @@ def decode(
             f"expected features (frames, {FeatureLayout(skeleton.num_joints).dim}) for "
             f"{skeleton.num_joints} joints, got {tuple(x.shape)}"
         )
-    heading, root = _integrate_root(x, start_position, start_heading)
+    heading, root = root_trajectory(x, start_position, start_heading)
     positions = np.repeat(skeleton.offsets[None], x.shape[0], axis=0)
     positions[:, 0] = root.numpy()
     return Motion(skeleton, _local_rotations(x, heading).numpy(), positions, frame_time)

@@ -1,0 +1,175 @@
+"""DiffMotion steered by a walking path instead of speech (beyond the paper), trained on Xia walking.
+
+The architecture is DiffMotion's (`AutoregressiveDiffusion`): an LSTM over the previous pose and the
+frame's encoded control, and a per-frame DDPM. The control of frame t says where to walk next:
+
+    c_t = the path's positions k = 0, e, 2e, .. lookahead frames ahead, (x, z) in the walker's own frame
+          (its root position and heading at frame t), plus a learned embedding of the style id
+
+Their spacing is the desired root velocity, their direction the desired heading. In training the
+"path" is where the real walker goes (the window's own root, held at its last velocity and turn rate
+past the window's end). In generation it is the user's path, read from where the walker actually is:
+the reference is the closest path point to the walker, and the points ahead follow the path at the
+requested speed, so drifting off the path shows up as a path that bends back, which the model follows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from walkdiff.data.datamodule import DataSpec
+from walkdiff.errors import WalkdiffError
+from walkdiff.models.diffmotion import AutoregressiveDiffusion
+from walkdiff.motion.path import Polyline
+from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
+
+
+def local_offsets(targets: torch.Tensor, origin: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+    """World points (..., K, 2) as (x, z) in the frame at `origin` (..., 2) facing `heading` (...).
+
+    The inverse of `yaw_matrix`: the walker's forward (+Z) axis is (sin h, cos h) in the world.
+    """
+    d = targets - origin.unsqueeze(-2)
+    sin, cos = heading.sin().unsqueeze(-1), heading.cos().unsqueeze(-1)
+    x = d[..., 0] * cos - d[..., 1] * sin
+    z = d[..., 0] * sin + d[..., 1] * cos
+    return torch.stack([x, z], dim=-1).flatten(-2)
+
+
+def advance_root(
+    position: np.ndarray, heading: np.ndarray, raw: np.ndarray, layout: FeatureLayout
+) -> tuple[np.ndarray, np.ndarray]:
+    """The root (x, z) (B, 2) and heading (B,) one frame on, by a frame of raw features (B, D).
+
+    The same integration as `root_trajectory`: the planar velocity in the heading frame, then the turn.
+    """
+    vx, vz = raw[:, layout.root_vel.start], raw[:, layout.root_vel.start + 1]
+    sin, cos = np.sin(heading), np.cos(heading)
+    position = position + np.stack([vx * cos + vz * sin, -vx * sin + vz * cos], axis=-1)
+    return position, heading + raw[:, layout.heading_vel.start]
+
+
+class PathWalker(AutoregressiveDiffusion):
+    def __init__(
+        self,
+        data_spec: DataSpec | dict | None = None,
+        hidden: int = 512,
+        lstm_layers: int = 2,
+        control_hidden: int = 128,
+        channels: int = 16,
+        residual_layers: int = 6,
+        dilation_cycle: int = 2,
+        dropout: float = 0.1,
+        timesteps: int = 100,
+        schedule: str = "quad",
+        beta_start: float = 1e-4,
+        beta_end: float = 0.1,
+        pose_noise: float = 0.05,
+        lookahead: int = 15,
+        control_every: int = 3,
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        grad_clip: float = 1.0,
+    ):
+        super().__init__(data_spec)
+        self.save_hyperparameters(ignore=["data_spec"])
+        self.hparams["data_spec"] = spec = self.spec
+        if lookahead < 0 or control_every < 1:
+            raise WalkdiffError(
+                f"model.lookahead must be >= 0 and model.control_every >= 1, got {lookahead}, {control_every}"
+            )
+        self.ahead = list(range(0, lookahead + 1, control_every))
+        control_dim = 2 * len(self.ahead)
+        self.build(
+            control_dim, hidden, lstm_layers, control_hidden, channels, residual_layers,
+            dilation_cycle, dropout, timesteps, schedule, beta_start, beta_end,
+        )  # fmt: skip
+        self.style = nn.Embedding(len(spec["styles"]), control_hidden)
+        self.control_normalizer = Normalizer(control_dim)
+        # Mean walking speed of each style in the training data (units/s): the default pace of a path.
+        self.register_buffer("style_speed", torch.zeros(len(spec["styles"])))
+
+    # ------------------------------------------------------------ control
+
+    def controls_of(self, raw: torch.Tensor) -> torch.Tensor:
+        """(B, F, 2K) controls of real walking (raw features (B, F, D)): where the walker itself goes."""
+        frames = raw.shape[1]
+        extended = torch.cat([raw, raw[:, -1:].expand(-1, self.ahead[-1], -1)], dim=1)
+        heading, root = root_trajectory(extended)
+        index = torch.arange(frames, device=raw.device)[:, None] + torch.tensor(self.ahead, device=raw.device)
+        targets = root[:, index][..., [0, 2]]  # (B, F, K, 2)
+        return local_offsets(targets, root[:, :frames, [0, 2]], heading[:, :frames])
+
+    def encode_control(self, control: torch.Tensor, style: torch.Tensor) -> torch.Tensor:
+        """Raw controls (B, F, 2K) and style ids (B,) -> encoder inputs (B, F, control_hidden)."""
+        return self.encoder.audio(self.control_normalizer.normalize(control)) + self.style(style)[:, None]
+
+    def setup(self, stage: str) -> None:
+        super().setup(stage)
+        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if datamodule is None or stage != "fit":
+            return
+        # Statistics of the controls and speeds of the real training walks (mirrored copies included).
+        controls, speeds = [], {i: [] for i in range(len(self.spec["styles"]))}
+        for clip, _, features in datamodule.split_features("train", mirrored=datamodule.hparams.mirror):
+            raw = torch.from_numpy(features).unsqueeze(0)
+            controls.append(self.controls_of(raw)[0].numpy())
+            step = raw[0, :, self.layout.root_vel].norm(dim=-1) * self.spec["fps"]
+            speeds[clip.style].append(step.numpy())
+        fitted = Normalizer.fit(np.concatenate(controls))
+        self.control_normalizer.load_state_dict(fitted.state_dict())
+        for style, values in speeds.items():
+            if values:
+                self.style_speed[style] = float(np.concatenate(values).mean())
+
+    # ------------------------------------------------------------ training
+
+    def loss(self, batch: dict) -> torch.Tensor:
+        raw = self.normalizer.denormalize(batch["features"])
+        control = self.encode_control(self.controls_of(raw), batch["style"])
+        return self.sequence_loss(batch["features"], control)
+
+    # ------------------------------------------------------------ generation
+
+    @torch.no_grad()
+    def generate(
+        self,
+        path: Polyline,
+        style: torch.Tensor,
+        speed: torch.Tensor,
+        frames: int,
+        generator: torch.Generator | None = None,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
+        """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames.
+
+        Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
+        """
+        rows, dim, fps = style.shape[0], self.spec["feature_dim"], self.spec["fps"]
+        start = path.points[0]
+        forward = path.direction(0.0)
+        start_heading = float(np.arctan2(forward[0], forward[1]))
+        position = np.tile(start, (rows, 1))
+        heading = np.full(rows, start_heading)
+        progress = np.zeros(rows)
+        pace = speed.double().cpu().numpy()[:, None] * np.asarray(self.ahead) / fps  # (B, K)
+        tables = self.sampling_tables()
+        poses = torch.zeros(rows, frames, dim, device=self.device)
+        previous, state = torch.zeros(rows, 1, dim, device=self.device), None
+        style = style.to(self.device)
+        for f in range(frames):
+            # Where the walker is along the path: its closest point, near where it was a frame ago.
+            reach = 2 * float(pace[:, -1].max()) + 1.0
+            progress, _ = path.project(position, near=progress, reach=reach)
+            targets = torch.from_numpy(path.at(progress[:, None] + pace)).float()
+            control = local_offsets(
+                targets, torch.from_numpy(position).float(), torch.from_numpy(heading).float()
+            ).to(self.device)
+            h, state = self.encoder(previous, self.encode_control(control[:, None], style), state)
+            x = self.sample_frame(h[:, 0], tables, generator)
+            poses[:, f] = x
+            previous = x.unsqueeze(1)
+            raw = self.normalizer.denormalize(x).double().cpu().numpy()
+            position, heading = advance_root(position, heading, raw, self.layout)
+        return self.normalizer.denormalize(poses).cpu().numpy(), (start.copy(), start_heading)
