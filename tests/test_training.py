@@ -164,3 +164,47 @@ def test_ddp_two_processes_through_the_cli(tiny_root, tmp_path):
     metrics = runs[0].data.metrics
     assert "train/loss_epoch" in metrics and "val/loss" in metrics
     assert (tmp_path / "checkpoints" / "xia_cpu" / "last.ckpt").exists()
+
+
+def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
+    """The FK terms are zero for the real motion itself and measure feet sliding while planted."""
+    dm = datamodule(tiny_root)
+    dm.setup("fit")
+    model = StyledMotionDiffusion(dm.spec, **TINY, lambda_velocity=1.0, lambda_foot=1.0, lambda_position=1.0)
+    model.normalizer.load_state_dict(dm.normalizer.state_dict())
+    model.skeleton = dm.skeleton
+    batch = next(iter(dm.train_dataloader()))
+    # Standing still on planted feet: every frame the first pose, no root motion, all contacts on.
+    raw = model.normalizer.denormalize(batch["features"])[:, :1].repeat(1, 24, 1)
+    raw[..., model.layout.root_vel] = 0
+    raw[..., model.layout.heading_vel] = 0
+    raw[..., model.layout.contacts] = 1
+    batch = batch | {"features": model.normalizer.normalize(raw)}
+    t = torch.zeros(len(raw), dtype=torch.long)  # weight abar_0 = 0.999
+
+    def losses(x0_hat):
+        return model.generator_losses(batch, x0_hat, x0_hat, x0_hat, t, adversarial=False)
+
+    exact = losses(batch["features"])
+    assert exact["velocity"] == 0 and exact["foot"] == 0 and exact["position"] == 0
+    # Sliding 1 unit sideways every frame: planted feet move at 30 units/s, 6 contact thresholds.
+    slid_raw = raw.clone()
+    slid_raw[..., 0] += 1.0
+    slid = model.normalizer.normalize(slid_raw).requires_grad_(True)
+    moved = losses(slid)
+    abar = float(model.diffusion.alphas_cumprod[0])
+    assert moved["foot"].item() == pytest.approx(abar * 36.0, rel=1e-4)
+    assert moved["velocity"].item() == pytest.approx(abar * 36.0 / 3, rel=1e-4)  # every joint, x of (x, y, z)
+    assert moved["position"].item() == pytest.approx(0, abs=1e-8)  # the pose itself did not change
+    moved["foot"].backward()
+    assert slid.grad[..., 0].abs().sum() > 0
+    # Lowering the root by one contact height moves no joint relative to the root...
+    low = raw.clone()
+    low[..., model.layout.root_height] -= model.contact_spec.height_threshold
+    assert losses(model.normalizer.normalize(low))["position"].item() == pytest.approx(0, abs=1e-8)
+    # ...bending the pose does: every joint below the first rotated one moves.
+    bent = raw.clone()
+    bent[..., model.layout.rotations.start + 6 : model.layout.rotations.start + 12] = torch.tensor(
+        [0.0, 1.0, 0.0, -1.0, 0.0, 0.0]
+    )
+    assert losses(model.normalizer.normalize(bent))["position"].item() > 0.1

@@ -240,7 +240,7 @@ def _transfer_windows(model, dm, strength: float, keep_trajectory: bool, seed: i
         source = model.normalizer.normalize(torch.from_numpy(features))[None].expand(len(target), -1, -1)
         content = torch.full_like(target, walk)
         x = restyle(model, source, target, content, strength, Sampling(), generator, keep_trajectory)
-        raw = model.normalizer.denormalize(x)
+        raw = torch.from_numpy(model.to_raw(x))
         root_in, root_out = decode_root(torch.from_numpy(features)), decode_root(raw)
         walked = (root_in[1:, [0, 2]] - root_in[:-1, [0, 2]]).norm(dim=-1).sum()
         errors += ((root_out - root_in)[..., [0, 2]].norm(dim=-1).mean(-1) / walked).tolist()

@@ -100,6 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stride", type=int, default=1, help="frames between real windows (default 1)")
     p.add_argument("--batch-size", type=int, default=500, help="windows generated / scored at once")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    p.add_argument(
+        "--no-ground", dest="ground", action="store_false",
+        help="score the windows as sampled, without grounding their feet (reported beside them otherwise)",
+    )  # fmt: skip
     p.add_argument("--mlflow-experiment", default=None, help="log metrics and reports into an MLflow run")
 
     def sampling_options(p: argparse.ArgumentParser) -> None:
@@ -115,6 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows")
         p.add_argument("--blend", type=int, default=None, help="of those, frames cross-faded (default: half)")
         p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
+        p.add_argument(
+            "--no-ground", dest="ground", action="store_false",
+            help="keep the height as sampled (default: planted feet lifted or lowered onto the floor)",
+        )  # fmt: skip
         p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
         p.add_argument("--overwrite", action="store_true", help="replace existing output files")
         p.add_argument("--device", default="cpu", help="cpu or cuda")

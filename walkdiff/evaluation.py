@@ -194,9 +194,15 @@ def balanced_labels(num: int, styles: int, content_ids: list[int]) -> tuple[torc
 
 
 def generate_windows(
-    model, num: int, content_ids: list[int], generator: torch.Generator, batch_size: int, **sampling
+    model,
+    num: int,
+    content_ids: list[int],
+    generator: torch.Generator,
+    batch_size: int,
+    grounded: bool = True,
+    **sampling,
 ) -> WindowSet:
-    """`num` raw windows from a generator with `generate` (normalised output) and `normalizer`."""
+    """`num` raw windows from a generator (`generate`, `to_raw`), grounded unless told otherwise."""
     style, content = balanced_labels(num, len(model.spec["styles"]), content_ids)
     raws = []
     for i in range(0, num, batch_size):
@@ -206,7 +212,7 @@ def generate_windows(
             generator=generator,
             **sampling,
         )
-        raws.append(model.normalizer.denormalize(x).float().cpu())
+        raws.append(torch.from_numpy(model.to_raw(x, grounded)))
     return WindowSet(torch.cat(raws), style, content, torch.full((num,), -1))
 
 
@@ -271,6 +277,7 @@ def evaluate(
     sampler: str = "ddpm",
     steps: int | None = None,
     guidance: float = 1.0,
+    ground: bool = True,
     split: str = "test",
     contents: str | None = None,
     root: str | None = None,
@@ -341,7 +348,15 @@ def evaluate(
         rows["generated"] = []
         for repeat in tqdm(range(repeats), desc="generated", unit="repeat"):
             sampling = dict(sampler=sampler, steps=steps, guidance=guidance, progress=True)
-            windows = generate_windows(model, num, content_ids, generator, batch_size, **sampling)
+            windows = generate_windows(
+                model, num, content_ids, generator, batch_size, grounded=False, **sampling
+            )
+            if ground:
+                # The same windows scored both ways: what grounding changes, and only that.
+                rows.setdefault("generated, not grounded", []).append(
+                    scorer.score(scorer.embed(windows), seed=seed + repeat)
+                )
+                windows = replace(windows, raw=torch.from_numpy(model.ground(windows.raw.numpy())))
             rows["generated"].append(scorer.score(scorer.embed(windows), seed=seed + repeat))
 
     draw = torch.Generator().manual_seed(seed)
@@ -365,6 +380,7 @@ def evaluate(
             "sampler": None if real_only else sampler,
             "steps": None if real_only else steps,
             "guidance": None if real_only else guidance,
+            "grounded": None if real_only else ground,
             "split": split,
             "stride": stride,
             "device": str(device),

@@ -1,4 +1,9 @@
-"""Foot clean-up: pin feet that are labelled in contact and bend the legs to reach them (two-bone IK).
+"""Foot clean-up: feet on the ground (`ground`, vertical) and pinned while in contact (`fix_feet`, IK).
+
+Grounding: a generated clip is shifted vertically so that its planted feet stand at the height real
+planted feet have in the training data. A whole-body offset of a few centimetres is invisible in a
+clip but puts swinging feet under the contact height, where they count as sliding.
+
 
 For each foot (heel and toe joints of a `ContactSpec`), every run of frames in which the heel is in contact
 gets one ground point, the mean horizontal position of the heel over that run; the same for the toe. In a
@@ -20,7 +25,7 @@ import roma
 import torch
 
 from walkdiff.motion.kinematics import forward_kinematics
-from walkdiff.motion.representation import ContactSpec, FeatureLayout, decode, encode
+from walkdiff.motion.representation import ContactSpec, FeatureLayout, decode, encode, features_to_positions
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 # A leg is never stretched to exactly its full length: the knee angle would lose its direction.
@@ -152,4 +157,49 @@ def fix_feet_features(raw: np.ndarray, skeleton: Skeleton, fps: float, spec: Con
         motion = decode(raw[index], skeleton, 1.0 / fps)
         fixed = fix_feet(motion, raw[index][:, layout.contacts], spec)
         out[index][:, layout.rotations] = encode(fixed, spec)[:, layout.rotations]
+    return out
+
+
+# ---------------------------------------------------------------- grounding (vertical)
+
+
+def _feet_heights(raw: torch.Tensor, skeleton: Skeleton, spec: ContactSpec) -> torch.Tensor:
+    """World heights (..., F, 4) of the contact joints of raw features (..., F, D)."""
+    offsets = torch.from_numpy(skeleton.offsets).to(raw.dtype)
+    positions = features_to_positions(raw, offsets, skeleton.parents)
+    return positions[..., [skeleton.index(name) for name in spec.joints], 1]
+
+
+def planted_heights(clips: list[np.ndarray], skeleton: Skeleton, spec: ContactSpec) -> np.ndarray:
+    """(4,) median height of each contact joint over the frames real clips label it planted."""
+    heights, planted = [], []
+    layout = FeatureLayout(skeleton.num_joints)
+    for raw in clips:
+        raw = torch.from_numpy(np.asarray(raw, dtype=np.float64))
+        heights.append(_feet_heights(raw, skeleton, spec))
+        planted.append(raw[:, layout.contacts] > 0.5)
+    heights, planted = torch.cat(heights), torch.cat(planted)
+    if not planted.any(0).all():
+        raise ValueError("some contact joint is never planted in the clips: cannot measure its height")
+    return np.array([float(heights[planted[:, j], j].median()) for j in range(4)])
+
+
+def ground(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray) -> np.ndarray:
+    """Raw features (..., F, D) lifted or lowered so their planted feet stand where real ones do.
+
+    One vertical shift per clip: the median, over its planted frames and joints (the clip's own contact
+    labels), of how far each planted joint is from that joint's planted height in the training data
+    (`planted_heights`). Only the root height changes; a clip with no planted frame is left as it is.
+    """
+    raw = np.asarray(raw, dtype=np.float32)
+    layout = FeatureLayout(skeleton.num_joints)
+    feet = _feet_heights(torch.from_numpy(raw).double(), skeleton, spec).numpy()
+    planted = raw[..., layout.contacts] > 0.5
+    gap = np.where(planted, np.asarray(heights)[None] - feet, np.nan)  # (..., F, 4)
+    flat = gap.reshape(*gap.shape[:-2], -1)
+    has = planted.reshape(flat.shape).any(-1)
+    shift = np.zeros(flat.shape[:-1])
+    shift[has] = np.nanmedian(flat[has], axis=-1)
+    out = raw.copy()
+    out[..., layout.root_height] += shift[..., None, None].astype(np.float32)
     return out

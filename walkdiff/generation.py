@@ -335,6 +335,7 @@ def sample(
     guidance: float = 1.0,
     overlap: int | None = None,
     blend: int | None = None,
+    ground: bool = True,
     fix_feet: bool = False,
     gif: bool = True,
     overwrite: bool = False,
@@ -361,7 +362,7 @@ def sample(
         model, _batch(style_label, num), _batch(content_id, num), frames, sampling, generator, overlap, blend
     )
     generated = time.perf_counter() - started
-    raw = model.to_raw(x)
+    raw = model.to_raw(x, ground)
     out.mkdir(parents=True, exist_ok=True)
     for path, features in zip(bvh, raw, strict=True):
         _write_clip(path, _finish(model, features, None, fix_feet), f"{label} {content}", gif)
@@ -377,6 +378,7 @@ def sample(
             **asdict(sampling),
             "overlap": overlap,
             "blend": blend,
+            "ground": ground,
             "fix_feet": fix_feet,
         },
         "seed": seed,
@@ -406,6 +408,7 @@ def transfer(
     guidance: float = 1.0,
     overlap: int | None = None,
     blend: int | None = None,
+    ground: bool = True,
     fix_feet: bool = False,
     gif: bool = True,
     overwrite: bool = False,
@@ -442,7 +445,7 @@ def transfer(
         keep_trajectory, overlap, blend,
     )  # fmt: skip
     elapsed = time.perf_counter() - started
-    result = _finish(model, model.to_raw(x)[0], start_pose(motion), fix_feet)
+    result = _finish(model, model.to_raw(x, ground)[0], start_pose(motion), fix_feet)
     out.mkdir(parents=True, exist_ok=True)
     _write_clip(target, result, label, gif, others=((motion, "source"),))
     report = {
@@ -459,6 +462,7 @@ def transfer(
             **asdict(sampling),
             "overlap": overlap,
             "blend": blend,
+            "ground": ground,
             "fix_feet": fix_feet,
         },
         "seed": seed,

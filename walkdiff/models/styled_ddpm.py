@@ -8,8 +8,10 @@ Loss of the generator (the denoiser), per batch:
     beyond the paper, on world joint positions P = FK(x0_hat) (the root integrated, then the skeleton):
         + lambda_velocity * w_t * ||dP(x0_hat) - dP(x0)||^2           (joint velocities)
         + lambda_foot     * w_t * ||dP_feet(x0_hat)||^2 where x0's foot is in contact  (no sliding)
+        + lambda_position * w_t * ||(P - P_root)(x0_hat) - (P - P_root)(x0)||^2  (the pose's geometry)
 The position terms measure velocities in multiples of the dataset's contact speed threshold (5 units/s
-for Xia), so they are unitless and ~1 for a foot that slides as fast as a walking toe barely moves.
+for Xia) and positions in contact heights (0.5 units), so they are unitless; a foot that slides at the
+threshold speed costs 1.
 The paper's losses constrain root and contact labels but not the legs, so its stance feet slide: the
 foot term is the foot-contact loss of MDM (Tevet et al. 2023), which is what the skating metric checks.
 The discriminator sees real x0 against detached x0_hat: 1/2 (D(x0) - 1)^2 + 1/2 w_t D(x0_hat)^2.
@@ -39,10 +41,12 @@ from walkdiff.data.datamodule import DataSpec
 from walkdiff.data.datasets import dataset_module
 from walkdiff.diffusion import GaussianDiffusion, ddim_sample, ddpm_sample, guided, guided_batched
 from walkdiff.errors import WalkdiffError
+from walkdiff.footfix import ground, planted_heights
 from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.motion.representation import decode_root, features_to_positions
+from walkdiff.motion.skeleton import skeleton_from_dict
 
 
 class TrainingDiverged(RuntimeError):
@@ -67,6 +71,7 @@ class StyledMotionDiffusion(MotionModule):
         lambda_adv: float = 0.05,
         lambda_velocity: float = 0.0,
         lambda_foot: float = 0.0,
+        lambda_position: float = 0.0,
         adv_warmup_batches: int = 500,
         cond_drop: float = 0.1,
         conditional_discriminator: bool = True,
@@ -98,6 +103,32 @@ class StyledMotionDiffusion(MotionModule):
             self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True
         )
         self.ema.requires_grad_(False)
+        # Where real planted feet stand (contact joints, data units): generated clips are grounded to it.
+        # Measured on the unmirrored training clips: a mirrored copy keeps Xia's asymmetric offsets, so
+        # its feet stand up to ~0.2 units off where a real foot on that side does.
+        self.register_buffer("planted_height", torch.zeros(4))
+
+    def setup(self, stage: str) -> None:
+        super().setup(stage)
+        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if stage == "fit" and datamodule is not None:
+            train = [f for _, _, f in datamodule.split_features("train")]
+            heights = planted_heights(train, self.skeleton, self.contact_spec)
+            self.planted_height.copy_(torch.from_numpy(heights))
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        super().on_load_checkpoint(checkpoint)
+        state = checkpoint["state_dict"]
+        if "planted_height" not in state:
+            # Saved before walkdiff stored it: measured again from the training data the run names.
+            from walkdiff.data.datamodule import MotionDataModule
+            from walkdiff.evaluation import data_settings
+
+            datamodule = MotionDataModule(**data_settings(checkpoint))
+            train = [f for _, _, f in datamodule.split_features("train")]
+            skeleton = skeleton_from_dict(checkpoint["skeleton"])
+            heights = planted_heights(train, skeleton, dataset_module(self.spec["dataset"]).CONTACTS)
+            state["planted_height"] = torch.from_numpy(heights).float()
 
     @property
     def optimizers_per_batch(self) -> int:
@@ -118,17 +149,23 @@ class StyledMotionDiffusion(MotionModule):
 
     @property
     def uses_positions(self) -> bool:
-        return self.hparams.lambda_velocity > 0 or self.hparams.lambda_foot > 0
+        h = self.hparams
+        return h.lambda_velocity > 0 or h.lambda_foot > 0 or h.get("lambda_position", 0) > 0
 
-    def _velocities(self, raw: torch.Tensor) -> torch.Tensor:
-        """World joint velocities (B, F-1, J, 3) of raw features, in contact speed thresholds."""
+    def _positions(self, raw: torch.Tensor) -> torch.Tensor:
+        """World joint positions (B, F, J, 3) of raw features."""
         if self.skeleton is None:
-            raise WalkdiffError(
-                "the velocity and foot losses need the skeleton: train through `walkdiff fit`"
-            )
+            raise WalkdiffError("the position losses need the skeleton: train through `walkdiff fit`")
         offsets = torch.as_tensor(self.skeleton.offsets, dtype=raw.dtype, device=raw.device)
-        positions = features_to_positions(raw, offsets, self.skeleton.parents)
+        return features_to_positions(raw, offsets, self.skeleton.parents)
+
+    def _velocities(self, positions: torch.Tensor) -> torch.Tensor:
+        """Joint velocities (B, F-1, J, 3) of positions, in contact speed thresholds."""
         return torch.diff(positions, dim=1) * (self.spec["fps"] / self.contact_spec.speed_threshold)
+
+    def _pose(self, positions: torch.Tensor) -> torch.Tensor:
+        """Joint positions relative to the root (B, F, J, 3), in contact heights."""
+        return (positions - positions[..., :1, :]) / self.contact_spec.height_threshold
 
     @property
     def contact_spec(self):
@@ -164,10 +201,13 @@ class StyledMotionDiffusion(MotionModule):
             "root": (weight * (decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))).mean(),
         }
         if self.uses_positions:
-            velocity_hat = self._velocities(raw_hat)
+            positions_hat = self._positions(raw_hat)
             with torch.no_grad():
-                velocity = self._velocities(raw)
+                positions = self._positions(raw)
+            velocity_hat, velocity = self._velocities(positions_hat), self._velocities(positions)
             losses["velocity"] = (weight * (velocity_hat - velocity).pow(2).mean(dim=(1, 2, 3))).mean()
+            pose_error = (self._pose(positions_hat) - self._pose(positions)).pow(2).mean(dim=(1, 2, 3))
+            losses["position"] = (weight * pose_error).mean()
             # A foot is planted over a step when the real motion labels it in contact at both ends.
             planted = raw[..., contacts] > 0.5
             planted = (planted[:, 1:] & planted[:, :-1]).to(raw.dtype)
@@ -186,6 +226,7 @@ class StyledMotionDiffusion(MotionModule):
             "root": h.lambda_root,
             "velocity": h.lambda_velocity,
             "foot": h.lambda_foot,
+            "position": h.get("lambda_position", 0.0),
             "adv": h.lambda_adv,
         }
         return sum(lambdas[k] * v for k, v in losses.items())
@@ -343,6 +384,14 @@ class StyledMotionDiffusion(MotionModule):
         pair_content = torch.cat([content, null_content])
         return guided_batched(lambda x, t: net(x, t, pair_style, pair_content), guidance)
 
-    def to_raw(self, x: torch.Tensor) -> np.ndarray:
-        """Normalised features -> features in data units (numpy), ready for representation.decode."""
-        return self.normalizer.denormalize(x).float().cpu().numpy()
+    def to_raw(self, x: torch.Tensor, grounded: bool = True) -> np.ndarray:
+        """Normalised features -> features in data units (numpy), ready for representation.decode.
+
+        `grounded`: shifted so the planted feet stand where real ones do (footfix.ground).
+        """
+        raw = self.normalizer.denormalize(x).float().cpu().numpy()
+        return self.ground(raw) if grounded else raw
+
+    def ground(self, raw: np.ndarray) -> np.ndarray:
+        """Raw features (..., F, D) shifted so their planted feet stand where real ones do."""
+        return ground(raw, self.skeleton, self.contact_spec, self.planted_height.cpu().numpy())
