@@ -141,3 +141,31 @@ def test_fix_feet_features_changes_only_rotations(xia_dir):
     contacts = torch.from_numpy(raw[..., layout.contacts])
     before, after = (skating(p, contacts, motion.skeleton) for p in positions)
     assert after["slide_speed"] < 0.5 * before["slide_speed"]
+
+
+def test_grounding_puts_planted_feet_back_on_the_training_floor(xia_dir):
+    """Real clips, lifted or sunk by a few units, come back to where their planted feet stood."""
+    from walkdiff.data.xia import list_clips, load
+    from walkdiff.footfix import ground, planted_heights
+
+    clips = [c for c in list_clips(xia_dir) if c.content == 0][:8]
+    raws = [encode(resample(load(c), 30.0), CONTACTS) for c in clips]
+    skeleton = load(clips[0]).skeleton
+    heights = planted_heights(raws, skeleton, CONTACTS)
+    assert np.all(np.isfinite(heights)) and np.all(np.abs(heights) < 2.0)
+    layout = FeatureLayout(skeleton.num_joints)
+    window = np.stack([r[:24] for r in raws])  # (8, 24, D)
+    shifted = window.copy()
+    shifted[..., layout.root_height] += np.linspace(-3, 3, 8)[:, None, None].astype(np.float32)
+    grounded = ground(shifted, skeleton, CONTACTS, heights)
+    # Each clip lands within a fraction of the contact height of where it was (its floor differs a bit).
+    error = grounded[..., 0, layout.root_height.start] - window[..., 0, layout.root_height.start]
+    assert np.abs(error).max() < CONTACTS.height_threshold
+    np.testing.assert_array_equal(np.delete(grounded, layout.root_height.start, -1),
+                                  np.delete(shifted, layout.root_height.start, -1))  # fmt: skip
+    # No planted frame, no shift; a joint never planted in the data (NaN) is left out.
+    flying = shifted.copy()
+    flying[..., layout.contacts] = 0
+    np.testing.assert_array_equal(ground(flying, skeleton, CONTACTS, heights), flying)
+    partial = ground(shifted, skeleton, CONTACTS, np.array([heights[0], np.nan, np.nan, np.nan]))
+    assert np.isfinite(partial).all()

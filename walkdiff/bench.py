@@ -13,6 +13,8 @@ from pathlib import Path
 
 import torch
 
+from walkdiff.files import write_json
+
 
 def machine() -> dict:
     return {
@@ -26,7 +28,7 @@ def machine() -> dict:
 
 def report(out: str | Path, result: dict) -> None:
     """Write a benchmark's JSON (atomically) and show it."""
-    report(out, result)
+    write_json(out, result)
     print(json.dumps(result, indent=2))
 
 

@@ -171,7 +171,10 @@ def _feet_heights(raw: torch.Tensor, skeleton: Skeleton, spec: ContactSpec) -> t
 
 
 def planted_heights(clips: list[np.ndarray], skeleton: Skeleton, spec: ContactSpec) -> np.ndarray:
-    """(4,) median height of each contact joint over the frames real clips label it planted."""
+    """(4,) median height of each contact joint over the frames real clips label it planted.
+
+    NaN for a joint the clips never plant (`ground` then leaves it out).
+    """
     heights, planted = [], []
     layout = FeatureLayout(skeleton.num_joints)
     for raw in clips:
@@ -179,9 +182,9 @@ def planted_heights(clips: list[np.ndarray], skeleton: Skeleton, spec: ContactSp
         heights.append(_feet_heights(raw, skeleton, spec))
         planted.append(raw[:, layout.contacts] > 0.5)
     heights, planted = torch.cat(heights), torch.cat(planted)
-    if not planted.any(0).all():
-        raise ValueError("some contact joint is never planted in the clips: cannot measure its height")
-    return np.array([float(heights[planted[:, j], j].median()) for j in range(4)])
+    return np.array(
+        [float(heights[planted[:, j], j].median()) if planted[:, j].any() else np.nan for j in range(4)]
+    )
 
 
 def ground(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray) -> np.ndarray:
@@ -197,7 +200,7 @@ def ground(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.n
     planted = raw[..., layout.contacts] > 0.5
     gap = np.where(planted, np.asarray(heights)[None] - feet, np.nan)  # (..., F, 4)
     flat = gap.reshape(*gap.shape[:-2], -1)
-    has = planted.reshape(flat.shape).any(-1)
+    has = np.isfinite(flat).any(-1)
     shift = np.zeros(flat.shape[:-1])
     shift[has] = np.nanmedian(flat[has], axis=-1)
     out = raw.copy()

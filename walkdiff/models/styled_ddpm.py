@@ -29,6 +29,7 @@ bound training by epochs and time instead, and warm-up counts batches (`self.bat
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 
@@ -47,6 +48,8 @@ from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.motion.representation import decode_root, features_to_positions
 from walkdiff.motion.skeleton import skeleton_from_dict
+
+log = logging.getLogger(__name__)
 
 
 class TrainingDiverged(RuntimeError):
@@ -114,6 +117,10 @@ class StyledMotionDiffusion(MotionModule):
         if stage == "fit" and datamodule is not None:
             train = [f for _, _, f in datamodule.split_features("train")]
             heights = planted_heights(train, self.skeleton, self.contact_spec)
+            never = [n for n, h in zip(self.contact_spec.joints, heights, strict=True) if np.isnan(h)]
+            if never:
+                log.warning(f"contact joints never planted in the training data: {', '.join(never)}; "
+                            "grounding of generated clips leaves them out")  # fmt: skip
             self.planted_height.copy_(torch.from_numpy(heights))
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
