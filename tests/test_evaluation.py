@@ -109,7 +109,8 @@ def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path):
     args = ["evaluate", "--ckpt", str(ckpt), "--evaluator", str(setup["ckpt"]), "--out", str(out)]
     assert main(args + ["--num", "16", "--repeats", "2", "--sampler", "ddim", "--steps", "2"]) == 0
     report = json.loads((out / "report.json").read_text())
-    assert list(report["rows"]) == ["generated", "real test", "real train vs test"]
+    # The same generated windows grounded and as sampled, then the real references.
+    assert list(report["rows"]) == ["generated", "generated, not grounded", "real test", "real train vs test"]
     assert report["data"]["contents"] == ["walk"]  # the generator's data selection
     generated = report["rows"]["generated"]
     assert set(generated) == set(METRICS) and generated["fmd"]["n"] == 2

@@ -252,7 +252,8 @@ def test_evaluate_reports_the_protocol_without_styles(trained, tmp_path):
     args += ["--out", str(out), "--num", "24", "--repeats", "2", "--sampler", "ddim", "--steps", "2"]
     assert main(args + ["--stride", "10"]) == 0
     report = json.loads((out / "report.json").read_text())
-    assert list(report["rows"]) == ["generated", "real test", "real train vs test"]
+    # The same generated windows grounded and as sampled, then the real references.
+    assert list(report["rows"]) == ["generated", "generated, not grounded", "real test", "real train vs test"]
     assert report["data"]["contents"] == list(humanact12.GROUPS)
     assert report["data"]["clips"]["test"] == 24  # the protocol's reference is all of the data
     for row in report["rows"].values():
