@@ -129,6 +129,7 @@ def _plain_seconds(config: str, batches: int, warmup: int) -> float:
     model, dm = _config_model_and_data(config)
     dm.setup("fit")
     model.normalizer.load_state_dict(dm.normalizer.state_dict())
+    model.skeleton = dm.skeleton  # the FK losses need it (Lightning's setup sets it too)
     model.train()
     h = model.hparams
     (opt_g, opt_d), (sched_g, sched_d) = model.configure_optimizers()
