@@ -29,6 +29,7 @@ from walkdiff.generation import (
     resolve_windows,
     restyle,
     seam_steps,
+    seams_within_spread,
     window_plan,
     windowed,
 )
@@ -118,15 +119,6 @@ def test_parse_style_ids_mixes_and_errors(model):
         parse_style(model, "happy:1,old:1")
     with pytest.raises(WalkdiffError, match="weights > 0"):
         parse_style(model, "angry:-1,old:2")
-
-
-def seams_within_spread(speeds: torch.Tensor, seams: list[int]) -> bool:
-    inside = torch.ones(speeds.shape[1], dtype=torch.bool)
-    inside[seams] = False
-    inner = speeds[:, inside]
-    return bool(
-        speeds[:, seams].mean() <= inner.mean() + 2 * inner.std() and speeds[:, seams].max() <= inner.max()
-    )
 
 
 def test_long_motion_has_no_seams_and_a_continuous_root(model):
@@ -259,3 +251,15 @@ def test_transfer_command_resamples_keeps_the_path_and_refuses_other_skeletons(c
     err = capsys.readouterr().err
     assert "another skeleton" in err and "missing joints: Head" in err and "unknown joints: Skull" in err
     assert np.isfinite(result.rotations).all()
+
+
+def test_a_checkpoint_without_planted_heights_loads_but_refuses_grounding(ckpt, tmp_path):
+    old = torch.load(ckpt, map_location="cpu", weights_only=False)
+    del old["state_dict"]["planted_height"]  # as saved before walkdiff measured planted feet
+    path = tmp_path / "old.ckpt"
+    torch.save(old, path)
+    model = load_generator(path)
+    x = torch.zeros(1, 24, model.spec["feature_dim"])
+    assert model.to_raw(x, grounded=False).shape == (1, 24, model.spec["feature_dim"])
+    with pytest.raises(WalkdiffError, match="cannot be grounded: retrain it, or pass --no-ground"):
+        model.to_raw(x)

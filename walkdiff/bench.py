@@ -203,11 +203,10 @@ def _median_seconds(fn, repeats: int) -> float:
 def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
     """Joint speeds (units/s) at the window seams of long samples against the steps inside windows.
 
-    A seam is every step from a window's last held frame through its cross-fade. `within_spread` is the
-    test's criterion: the seams' mean speed within the inside mean + 2 sd, and their maximum within the
-    inside maximum.
+    A seam is every step from a window's last held frame through its cross-fade; `within_spread` is
+    `generation.seams_within_spread`, the criterion the tests hold generation to.
     """
-    from walkdiff.generation import joint_speeds, seam_steps
+    from walkdiff.generation import joint_speeds, seam_steps, seams_within_spread
 
     speed = joint_speeds(model, x)
     seams = seam_steps(x.shape[1], model.spec["window"], overlap, blend)
@@ -220,9 +219,7 @@ def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
         "seam_p95": round(float(at_seams.quantile(0.95)), 3),
         "inside_mean": round(float(inner.mean()), 3),
         "inside_p05_p50_p95": [round(float(q), 3) for q in quantiles],
-        "within_spread": bool(
-            at_seams.mean() <= inner.mean() + 2 * inner.std() and at_seams.max() <= inner.max()
-        ),
+        "within_spread": seams_within_spread(speed, seams),
     }
 
 

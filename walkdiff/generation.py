@@ -115,6 +115,15 @@ def seam_steps(frames: int, window: int, overlap: int, blend: int = 0) -> list[i
     ]
 
 
+def seams_within_spread(speeds: torch.Tensor, seams: list[int]) -> bool:
+    """No visible seam: over (B, steps) joint speeds, the seams' mean is within the inside mean + 2 sd
+    and their maximum within the inside maximum."""
+    inside = torch.ones(speeds.shape[1], dtype=torch.bool)
+    inside[seams] = False
+    inner, at_seams = speeds[:, inside], speeds[:, seams]
+    return bool(at_seams.mean() <= inner.mean() + 2 * inner.std() and at_seams.max() <= inner.max())
+
+
 def joint_speeds(model, x: torch.Tensor) -> torch.Tensor:
     """Mean joint speed (units/s) of each step between frames of normalised features (B, F, D): (B, F - 1)."""
     skeleton = model.skeleton

@@ -179,7 +179,7 @@ def bench_walk(out: str, ckpt: str, evaluator: str, seed: int = 0) -> dict:
     from walkdiff.evaluation import load_evaluator
 
     model = load_walker(ckpt)
-    scorer = load_evaluator(evaluator).eval()
+    scorer = load_evaluator(evaluator)
     styles = list(range(len(model.spec["styles"])))
     scale = float(model.style_speed.mean())
     rows, panels = {}, []

@@ -154,13 +154,13 @@ class PathWalker(AutoregressiveDiffusion):
         heading = np.full(rows, start_heading)
         progress = np.zeros(rows)
         pace = speed.double().cpu().numpy()[:, None] * np.asarray(self.ahead) / fps  # (B, K)
+        reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
         tables = self.sampling_tables()
         poses = torch.zeros(rows, frames, dim, device=self.device)
         previous, state = torch.zeros(rows, 1, dim, device=self.device), None
         style = style.to(self.device)
         for f in range(frames):
             # Where the walker is along the path: its closest point, near where it was a frame ago.
-            reach = 2 * float(pace[:, -1].max()) + 1.0
             progress, _ = path.project(position, near=progress, reach=reach)
             targets = torch.from_numpy(path.at(progress[:, None] + pace)).float()
             control = local_offsets(

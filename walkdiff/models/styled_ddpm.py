@@ -47,7 +47,6 @@ from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.motion.representation import decode_root, features_to_positions
-from walkdiff.motion.skeleton import skeleton_from_dict
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +109,7 @@ class StyledMotionDiffusion(MotionModule):
         # Measured on the unmirrored training clips: a mirrored copy keeps Xia's asymmetric offsets, so
         # its feet stand up to ~0.2 units off where a real foot on that side does.
         self.register_buffer("planted_height", torch.zeros(4))
+        self.grounded_heights = True
 
     def setup(self, stage: str) -> None:
         super().setup(stage)
@@ -125,17 +125,9 @@ class StyledMotionDiffusion(MotionModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         super().on_load_checkpoint(checkpoint)
-        state = checkpoint["state_dict"]
-        if "planted_height" not in state:
-            # Saved before walkdiff stored it: measured again from the training data the run names.
-            from walkdiff.data.datamodule import MotionDataModule
-            from walkdiff.evaluation import data_settings
-
-            datamodule = MotionDataModule(**data_settings(checkpoint))
-            train = [f for _, _, f in datamodule.split_features("train")]
-            skeleton = skeleton_from_dict(checkpoint["skeleton"])
-            heights = planted_heights(train, skeleton, dataset_module(self.spec["dataset"]).CONTACTS)
-            state["planted_height"] = torch.from_numpy(heights).float()
+        # Checkpoints saved before walkdiff measured planted feet load, but cannot be grounded.
+        self.grounded_heights = "planted_height" in checkpoint["state_dict"]
+        checkpoint["state_dict"].setdefault("planted_height", torch.full((4,), float("nan")))
 
     @property
     def optimizers_per_batch(self) -> int:
@@ -157,7 +149,7 @@ class StyledMotionDiffusion(MotionModule):
     @property
     def uses_positions(self) -> bool:
         h = self.hparams
-        return h.lambda_velocity > 0 or h.lambda_foot > 0 or h.get("lambda_position", 0) > 0
+        return h.lambda_velocity > 0 or h.lambda_foot > 0 or h.lambda_position > 0
 
     def _positions(self, raw: torch.Tensor) -> torch.Tensor:
         """World joint positions (B, F, J, 3) of raw features."""
@@ -233,7 +225,7 @@ class StyledMotionDiffusion(MotionModule):
             "root": h.lambda_root,
             "velocity": h.lambda_velocity,
             "foot": h.lambda_foot,
-            "position": h.get("lambda_position", 0.0),
+            "position": h.lambda_position,
             "adv": h.lambda_adv,
         }
         return sum(lambdas[k] * v for k, v in losses.items())
@@ -401,4 +393,9 @@ class StyledMotionDiffusion(MotionModule):
 
     def ground(self, raw: np.ndarray) -> np.ndarray:
         """Raw features (..., F, D) shifted so their planted feet stand where real ones do."""
+        if not self.grounded_heights:
+            raise WalkdiffError(
+                "this checkpoint was saved before walkdiff stored where planted feet stand, so its clips "
+                "cannot be grounded: retrain it, or pass --no-ground"
+            )
         return ground(raw, self.skeleton, self.contact_spec, self.planted_height.cpu().numpy())
