@@ -16,6 +16,7 @@ from walkdiff.data.speech import SpeechDataModule
 from walkdiff.errors import WalkdiffError
 from walkdiff.gesture import (
     beat_consistency,
+    beat_gain,
     diversity,
     l1_distance,
     load_model,
@@ -128,6 +129,10 @@ def test_metrics_on_known_inputs():
     assert beat_consistency(np.array([1.0]), onsets) < 0.01
     assert beat_consistency(np.array([]), onsets) == 0.0
     np.testing.assert_allclose(shift_beats(np.array([0.5, 2.5]), 2.0, 3.0), [1.5, 2.5])
+    # Paired gain over samples: gains 0.1, 0.3 -> mean 0.2, sd 0.1414, CI 0.2 +- 1.96 * 0.1414 / sqrt(2).
+    gain = beat_gain([{"bc": 0.6, "bc_shifted": 0.5}, {"bc": 0.7, "bc_shifted": 0.4}])
+    assert gain["bc_gain"] == pytest.approx(0.2) and gain["bc_gain_positive_share"] == 1.0
+    np.testing.assert_allclose(gain["bc_gain_ci95"], [0.2 - 0.196, 0.2 + 0.196], atol=1e-9)
 
     # A joint whose speed 1 - cos(pi (t - 0.025)) stops once inside the clip, at 2.025 s (between frames).
     fps, t = 20.0, np.arange(81) / 20.0
@@ -167,12 +172,20 @@ def test_evaluate_gesture_report(trained, tmp_path):
     assert row["smoothed"]["jerk"] < row["generated"]["jerk"]
     assert (tmp_path / "a" / "a.gif").is_file()
 
+    # `walkdiff evaluate` knows a DiffMotion checkpoint and scores it the same way (--repeats samples).
+    out = tmp_path / "via_evaluate"
+    assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(out), "--repeats", "2"]) == 0
+    again = json.loads((out / "report.json").read_text())
+    assert again["samples"] == 2 and again["takes"][0]["generated"] == row["generated"]
+
 
 def test_missing_checkpoint_is_a_clear_error(tmp_path, capsys):
     assert (
         main(["gesture", "--ckpt", str(tmp_path / "no.ckpt"), "--audio", "x.wav", "--out", str(tmp_path)])
         == 1
     )
+    assert "checkpoint not found" in capsys.readouterr().err
+    assert main(["evaluate", "--ckpt", str(tmp_path / "no.ckpt"), "--out", str(tmp_path)]) == 1
     assert "checkpoint not found" in capsys.readouterr().err
 
 

@@ -302,6 +302,16 @@ def test_inpainting_keeps_known_region_and_noises_it_per_step():
         z = (seen[t][mask] - abar.sqrt() * known[mask]) / (1 - abar).sqrt()
         assert abs(z.mean().item()) < 0.05 and abs(z.std().item() - 1) < 0.05
 
+    # A soft mask m holds its elements only while t >= (1 - m) T: m = 0.5 for the noisier half of the steps.
+    seen.clear()
+    soft = torch.where(mask[0], 0.5, 0.0)
+    out = ddpm_sample(model_fn, diff, known.shape, generator=_gen(16), inpaint=(soft, known))
+    for t, kept in ((99, True), (50, True), (49, False), (5, False)):
+        abar = diff.alphas_cumprod[t]
+        z = (seen[t][mask] - abar.sqrt() * known[mask]) / (1 - abar).sqrt()
+        assert (abs(z.mean().item()) < 0.05 and abs(z.std().item() - 1) < 0.05) == kept, t
+    assert not torch.allclose(out[mask], known[mask], atol=0.5)  # not pasted back at the end
+
 
 def test_guidance():
     cond = lambda x, t: x + 1.0  # noqa: E731

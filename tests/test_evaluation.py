@@ -96,7 +96,7 @@ def test_evaluate_real_only_writes_both_reports(setup, tmp_path, monkeypatch):
     }
 
 
-def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path):
+def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path, capsys):
     torch.manual_seed(0)
     dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
     model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=10)
@@ -117,6 +117,8 @@ def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path):
     # An untrained generator is far from the real data.
     assert generated["fmd"]["mean"] > report["rows"]["real test"]["fmd"]["mean"]
     assert "| generated |" in (out / "report.md").read_text()
+    assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(out)]) == 1
+    assert "--evaluator is required" in capsys.readouterr().err
 
 
 def test_evaluate_needs_a_generator_unless_real_only(setup, tmp_path, capsys):

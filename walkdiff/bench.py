@@ -394,7 +394,7 @@ def bench_sample(
     }
     # Seams of 300-frame samples: held overlap only (blend 0) against cross-fades, DDPM and DDIM-10.
     seams = {}
-    for overlap, blend in ((None, 0), (None, None), (12, None)):
+    for overlap, blend in ((None, 0), (8, None), (None, None)):
         overlap, blend = resolve_windows(window, overlap, blend)
         for name, sampling in (("ddpm", Sampling()), ("ddim10", Sampling("ddim", 10))):
             x = generate_long(

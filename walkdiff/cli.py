@@ -83,8 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "evaluate", help="FMD, recognition accuracy, diversity, skating, jitter over repeats: report.json/.md"
     )
-    p.add_argument("--ckpt", help="generator checkpoint (not needed with --real-only)")
-    p.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    p.add_argument(
+        "--ckpt",
+        help="generator checkpoint (not needed with --real-only); a DiffMotion checkpoint is scored with "
+        "the gesture metrics of evaluate-gesture, --repeats samples of each held-out take",
+    )
+    p.add_argument("--evaluator", help="MotionEvaluator checkpoint (walking and action models)")
     p.add_argument("--out", required=True, help="folder for report.json and report.md")
     p.add_argument("--num", type=int, default=1000, help="windows per repeat (default 1000)")
     p.add_argument("--repeats", type=int, default=20, help="repeats (default 20)")
@@ -116,7 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--steps", type=int, default=None, help="DDIM steps (default 10)")
         p.add_argument("--eta", type=float, default=0.0, help="DDIM noise (0: deterministic)")
         p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance (1: none)")
-        p.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows")
+        p.add_argument(
+            "--overlap",
+            type=int,
+            default=None,
+            help="frames shared by consecutive windows (default: half a window)",
+        )
         p.add_argument("--blend", type=int, default=None, help="of those, frames cross-faded (default: half)")
         p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
         p.add_argument(
@@ -231,8 +240,18 @@ def run_command(args: argparse.Namespace) -> int:
             )
         )
     elif args.command == "evaluate":
-        from walkdiff.evaluation import evaluate
+        from walkdiff.evaluation import checkpoint_class, evaluate
 
+        if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
+            from walkdiff.gesture import evaluate_gesture
+
+            evaluate_gesture(args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root)
+            print(f"wrote {args.out}/report.json")
+            return 0
+        if args.evaluator is None:
+            raise WalkdiffError(
+                "--evaluator is required to score a walking or action model (a MotionEvaluator checkpoint)"
+            )
         options = vars(args).copy()
         del options["command"]
         report = evaluate(**options)

@@ -241,6 +241,15 @@ def _load_checkpoint(path: str | Path, what: str) -> dict:
     return torch.load(path, map_location="cpu", weights_only=False)
 
 
+def checkpoint_class(path: str | Path) -> str:
+    """The LightningModule class a checkpoint was saved from (older ones: LightningCLI's class path)."""
+    checkpoint = _load_checkpoint(path, "model")
+    hparams = checkpoint.get("hyper_parameters") or {}
+    return checkpoint.get("model_class") or hparams.get(
+        "_class_path", "walkdiff.models.styled_ddpm.StyledMotionDiffusion"
+    )
+
+
 def load_evaluator(path: str | Path, device: str | torch.device = "cpu"):
     import importlib
 

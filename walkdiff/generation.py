@@ -133,10 +133,10 @@ def joint_speeds(model, x: torch.Tensor) -> torch.Tensor:
 
 
 def resolve_windows(window: int, overlap: int | None, blend: int | None) -> tuple[int, int]:
-    """The overlap (default a third of the window: enough context for the next window to continue the
-    gait, most of it new) and the cross-fade (default half the overlap; `walkdiff bench sample` measures
-    the seams of both), checked."""
-    overlap = overlap or max(1, window // 3)
+    """The overlap (default half the window: its first half held as context for the gait, its second
+    half softly held and cross-faded) and the cross-fade (default half the overlap), checked.
+    `walkdiff bench sample` measures the seams of this and of a third of the window."""
+    overlap = overlap or max(1, window // 2)
     if not 0 < overlap < window:
         raise WalkdiffError(
             f"--overlap must be in [1, {window - 1}] for {window}-frame windows, got {overlap}"
@@ -170,10 +170,14 @@ def windowed(
             continue
         fade = min(blend, known - 1)
         held = known - fade
-        mask = torch.zeros(batch, stop - start, dim, dtype=torch.bool)
-        mask[:, :held] = True
+        # Held frames are kept at every denoising step; fade frame j of `fade` is kept for the noisiest
+        # (fade + 1 - j) / (fade + 1) of the steps, so its coarse motion is the old one's and the two
+        # agree before they are cross-faded (a cross-fade between disagreeing frames adds speed).
+        weight = torch.arange(1, fade + 1, dtype=torch.float32).div(fade + 1)[:, None]
+        mask = torch.zeros(batch, stop - start, dim)
+        mask[:, :held] = 1.0
+        mask[:, held:known] = 1 - weight
         new = denoise(start, stop, (mask, out[:, start:stop].clone())).float().cpu()
-        weight = torch.arange(1, fade + 1, dtype=new.dtype).div(fade + 1)[:, None]
         old = out[:, start + held : start + known]
         out[:, start + held : start + known] = old + weight * (new[:, held:known] - old)
         out[:, start + known : stop] = new[:, known:]
@@ -247,11 +251,12 @@ def restyle(
 
     def denoise(start: int, stop: int, inpaint: Known | None) -> torch.Tensor:
         x0 = source[:, start:stop].to(device)
-        mask = torch.zeros(x0.shape, dtype=torch.bool) if inpaint is None else inpaint[0]
+        # Hold strengths as `windowed` gives them (1: held, in (0, 1): softly held); the root path is held.
+        mask = torch.zeros(x0.shape) if inpaint is None else inpaint[0].float()
         known = torch.zeros(x0.shape) if inpaint is None else inpaint[1]
         if keep_trajectory:
-            known = torch.where(root & ~mask, x0.cpu(), known)
-            mask = mask | root
+            known = torch.where(root & (mask < 1), x0.cpu(), known)
+            mask = torch.where(root, 1.0, mask)
         draw_on = x0.device if generator is None else generator.device
         noise = torch.randn(x0.shape, generator=generator, device=draw_on).to(device)
         x_t = diffusion.q_sample(x0, torch.full((x0.shape[0],), t0, device=device), noise)

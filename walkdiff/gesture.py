@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import inspect
 import itertools
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -29,6 +28,7 @@ from scipy.signal import argrelmin
 
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import write_json
 from walkdiff.metrics import Jitter
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
@@ -207,6 +207,7 @@ def evaluate_gesture(
                 "pck": float(np.mean([pck(p, truth, pck_threshold) for p in positions])),
                 "bc": float(np.mean([b["bc"] for b in beats])),
                 "bc_shifted": float(np.mean([b["bc_shifted"] for b in beats])),
+                **beat_gain(beats),
                 "diversity": diversity(positions, clip) if samples * ((end - begin) // clip) >= 2 else None,
                 "jerk": mean_jerk(positions, fps),
             }
@@ -230,8 +231,7 @@ def evaluate_gesture(
         "clip_seconds": clip_seconds,
         "takes": rows,
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_json(out_dir / "report.json", report)
     return report
 
 
@@ -241,6 +241,17 @@ def _beat_row(positions: np.ndarray, onsets: np.ndarray, fps: float, duration: f
         "bc": beat_consistency(beats, onsets),
         "bc_shifted": beat_consistency(shift_beats(beats, SHIFT_SECONDS, duration), onsets),
         "beats": len(beats),
+    }
+
+
+def beat_gain(beats: list[dict]) -> dict:
+    """How much the timing with its own audio beats the 2-s shift, per sample (paired): mean and 95% CI."""
+    gain = np.array([b["bc"] - b["bc_shifted"] for b in beats])
+    half = 1.96 * gain.std(ddof=1) / np.sqrt(len(gain)) if len(gain) > 1 else float("nan")
+    return {
+        "bc_gain": float(gain.mean()),
+        "bc_gain_ci95": [float(gain.mean() - half), float(gain.mean() + half)],
+        "bc_gain_positive_share": float((gain > 0).mean()),
     }
 
 

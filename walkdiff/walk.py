@@ -80,12 +80,13 @@ def plot_paths(out: str | Path, panels: list[tuple[str, Polyline, list[tuple[str
         ax.plot(path.points[:, 0], path.points[:, 1], color="black", lw=3, alpha=0.3, label="path")
         for label, xz in walks:
             ax.plot(xz[:, 0], xz[:, 1], lw=1, label=label)
-        ax.set_aspect("equal")
+        ax.set_aspect("equal", adjustable="datalim")  # a straight path keeps a readable panel width
         ax.set_title(title)
         ax.set_xlabel("x")
         ax.set_ylabel("z")
-    axes[0][0].legend(fontsize=6, loc="best")
-    fig.tight_layout()
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="center right")
+    fig.tight_layout(rect=(0, 0, 0.9, 1))
     written = write_atomic(out, lambda f: fig.savefig(f, format="png", dpi=110))
     plt.close(fig)
     return written

@@ -27,7 +27,10 @@ from walkdiff.errors import WalkdiffError
 ModelFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 # False, True (a tqdm bar) or a hook called as hook(steps_done, steps_total) after every step.
 Progress = bool | Callable[[int, int], None]
-# (mask, known_x0): mask is True (non-zero) where known_x0 is kept; it broadcasts to the sample's shape.
+# (mask, known_x0): where known_x0 is kept; the mask broadcasts to the sample's shape. A boolean mask
+# holds its region at every step. A float mask m in [0, 1] holds an element while the step's t >= (1 - m) T:
+# m = 1 always, m = 0.5 for the noisier half of the steps (the coarse motion is the known one, the
+# detail is made anew), m = 0 never.
 Inpaint = tuple[torch.Tensor, torch.Tensor]
 
 
@@ -122,8 +125,9 @@ def run_steps(
     total = len(steps.timesteps)
     t_table = torch.tensor(steps.timesteps, device=device).unsqueeze(1).repeat(1, x.shape[0])
     if inpaint is not None:
-        mask = inpaint[0].to(device=device, dtype=torch.bool)
-        known = inpaint[1].to(device=device, dtype=x.dtype)
+        mask, known = inpaint[0].to(device), inpaint[1].to(device=device, dtype=x.dtype)
+        strength = mask.to(x.dtype) if mask.is_floating_point() else (mask != 0).to(x.dtype)
+        final = strength >= 1
 
     order = range(total)
     if progress is True:
@@ -136,7 +140,8 @@ def run_steps(
             noisy_known = (
                 known * steps.sqrt_abar[k] + _randn_like(x, generator) * steps.sqrt_one_minus_abar[k]
             )
-            x = torch.where(mask, noisy_known, x)
+            held = strength >= 1 - steps.timesteps[k] / diffusion.num_timesteps
+            x = torch.where(held, noisy_known, x)
         out = model_fn(x, t_table[k])
         x = x.mul(steps.x_coef[k]).add_(out, alpha=steps.out_coef[k])
         if steps.sigma[k] > 0:
@@ -144,7 +149,7 @@ def run_steps(
         if callable(progress):
             progress(k + 1, total)
     if inpaint is not None:
-        x = torch.where(mask, known, x)
+        x = torch.where(final, known, x)
     return x
 
 

@@ -64,6 +64,8 @@ class MotionModule(L.LightningModule):
         return model.to(device).eval()
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # Which model this is, for commands that take any checkpoint (`walkdiff evaluate`).
+        checkpoint["model_class"] = f"{type(self).__module__}.{type(self).__qualname__}"
         if self.skeleton is not None:
             checkpoint["skeleton"] = skeleton_to_dict(self.skeleton)
 

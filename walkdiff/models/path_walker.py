@@ -133,7 +133,7 @@ class PathWalker(AutoregressiveDiffusion):
 
     # ------------------------------------------------------------ generation
 
-    @torch.no_grad()
+    @torch.inference_mode()  # per-frame sampling is thousands of small ops: see DiffMotion.generate
     def generate(
         self,
         path: Polyline,
