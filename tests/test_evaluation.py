@@ -158,3 +158,31 @@ def test_callback_logs_metrics_and_images(setup, tmp_path):
     for name in images:
         path = client.download_artifacts(logger.run_id, name, str(tmp_path))
         assert Path(path).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
+    from walkdiff.bench import bench_sample
+
+    torch.manual_seed(0)
+    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=10)
+    trainer = tiny_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=1)
+    trainer.fit(model, dm)
+    ckpt = tmp_path / "generator.ckpt"
+    trainer.save_checkpoint(ckpt)
+
+    out = tmp_path / "bench"
+    result = bench_sample(
+        str(out), str(ckpt), str(setup["ckpt"]), num=16, ddim_steps=(5,), batch_size=4, repeats=1
+    )
+    settings = [(row["sampler"], row["steps"], row["eta"]) for row in result["quality"]]
+    assert settings == [("ddpm", 10, 1.0), ("ddim", 5, 0.0), ("ddim", 10, 0.5), ("ddim", 10, 1.0)]
+    assert all(row["fmd"] > 0 and 0 <= row["style_acc"] <= 1 for row in result["quality"])
+    assert result["grounded"] and result["speed"]["step_s"] > 0 and result["speed"]["forward_s"] > 0
+    seams = result["seams_300_frames"]
+    assert len(seams) == 6 and all(isinstance(row["within_spread"], bool) for row in seams.values())
+    assert all(row["seam_mean"] > 0 and row["inside_mean"] > 0 for row in seams.values())
+    kept = result["transfer"]["keep_trajectory"]
+    assert kept["windows"] > 0 and kept["root_path_error_relative_max"] < 1e-6
+    assert json.loads((out / "sample.json").read_text())["quality"] == result["quality"]
+    assert (out / "sample.png").stat().st_size > 0

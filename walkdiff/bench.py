@@ -223,7 +223,7 @@ def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
     }
 
 
-def _transfer_windows(model, dm, strength: float, keep_trajectory: bool, seed: int):
+def _transfer_windows(model, dm, strength: float, keep_trajectory: bool, seed: int, ground: bool = True):
     """Every test clip restyled to every other style, cut into windows; plus the root path errors."""
     from walkdiff.evaluation import WindowSet
     from walkdiff.generation import Sampling, restyle
@@ -240,7 +240,7 @@ def _transfer_windows(model, dm, strength: float, keep_trajectory: bool, seed: i
         source = model.normalizer.normalize(torch.from_numpy(features))[None].expand(len(target), -1, -1)
         content = torch.full_like(target, walk)
         x = restyle(model, source, target, content, strength, Sampling(), generator, keep_trajectory)
-        raw = torch.from_numpy(model.to_raw(x))
+        raw = torch.from_numpy(model.to_raw(x, ground))
         root_in, root_out = decode_root(torch.from_numpy(features)), decode_root(raw)
         walked = (root_in[1:, [0, 2]] - root_in[:-1, [0, 2]]).norm(dim=-1).sum()
         errors += ((root_out - root_in)[..., [0, 2]].norm(dim=-1).mean(-1) / walked).tolist()
@@ -293,6 +293,7 @@ def bench_sample(
     batch_size: int = 32,
     repeats: int = 3,
     strength: float = 0.6,
+    ground: bool = True,
 ) -> dict:
     """Quality against steps, speed, foot clean-up and transfer of a StyledMotionDiffusion checkpoint.
 
@@ -333,7 +334,7 @@ def bench_sample(
         generator = torch.Generator().manual_seed(seed)
         start = time.perf_counter()
         windows = generate_windows(
-            model, num, content_ids, generator, batch_size=num, sampler=sampler, steps=steps, eta=eta
+            model, num, content_ids, generator, num, ground, sampler=sampler, steps=steps, eta=eta
         )
         elapsed = time.perf_counter() - start
         generated[sampler, steps, eta] = windows
@@ -341,7 +342,7 @@ def bench_sample(
         quality.append(row | scored(windows) | {"seconds": round(elapsed, 2)})
         print(f"{sampler}-{steps} eta {eta}: {quality[-1]}", flush=True)
     # What a second seed alone changes: the noise floor of these numbers.
-    windows = generate_windows(model, num, content_ids, torch.Generator().manual_seed(seed + 1), num)
+    windows = generate_windows(model, num, content_ids, torch.Generator().manual_seed(seed + 1), num, ground)
     ddpm_other_seed = scored(windows)
     real = scored(
         reference.take(torch.randperm(len(reference), generator=torch.Generator().manual_seed(seed))[:num])
@@ -392,9 +393,10 @@ def bench_sample(
         "step_over_forward": round(batch_s / 10 / forward_s, 3),
         f"batch1_latency_{two_seconds}_frames": latency,
     }
-    # Seams of 300-frame samples: held overlap only (blend 0) against cross-fades, DDPM and DDIM-10.
+    # Seams of 300-frame samples: the default overlap held only (blend 0), a third of the window with its
+    # cross-fade, and the default; DDPM and DDIM-10.
     seams = {}
-    for overlap, blend in ((None, 0), (8, None), (None, None)):
+    for overlap, blend in ((None, 0), (max(1, window // 3), None), (None, None)):
         overlap, blend = resolve_windows(window, overlap, blend)
         for name, sampling in (("ddpm", Sampling()), ("ddim10", Sampling("ddim", 10))):
             x = generate_long(
@@ -412,7 +414,7 @@ def bench_sample(
     # Transfer: every walking test clip to every other style, noised to `strength`, DDPM from there.
     transfer = {"strength": strength, "real_test_style_acc": real["style_acc"]}
     for keep in (False, True):
-        windows, source_style, errors = _transfer_windows(model, dm, strength, keep, seed)
+        windows, source_style, errors = _transfer_windows(model, dm, strength, keep, seed, ground)
         values = scored(windows)
         embedded = scorer.embed(windows)
         transfer["keep_trajectory" if keep else "free"] = {
@@ -434,6 +436,7 @@ def bench_sample(
         "evaluator": evaluator,
         "num": num,
         "seed": seed,
+        "grounded": ground,
         "quality": quality,
         "ddpm_other_seed": ddpm_other_seed,
         "real_test": real,
@@ -499,8 +502,9 @@ def run(args) -> None:
         bench_train(args.out, args.config, args.batches)
     elif args.what == "sample":
         bench_sample(
-            args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, strength=args.strength
-        )
+            args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, strength=args.strength,
+            ground=args.ground,
+        )  # fmt: skip
     elif args.what == "gesture":
         bench_gesture(args.out, args.ckpt, args.frames)
     elif args.what == "walk":

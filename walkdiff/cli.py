@@ -207,6 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--num", type=int, default=400, help="windows per sampler setting (default 400)")
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--strength", type=float, default=0.6, help="transfer noise level (default 0.6)")
+    b.add_argument(
+        "--no-ground", dest="ground", action="store_false",
+        help="score windows as sampled (needed for checkpoints saved before grounding existed)",
+    )  # fmt: skip
     return parser
 
 

@@ -127,7 +127,7 @@ def seams_within_spread(speeds: torch.Tensor, seams: list[int]) -> bool:
 def joint_speeds(model, x: torch.Tensor) -> torch.Tensor:
     """Mean joint speed (units/s) of each step between frames of normalised features (B, F, D): (B, F - 1)."""
     skeleton = model.skeleton
-    raw = torch.from_numpy(model.to_raw(x)).double()
+    raw = torch.from_numpy(model.to_raw(x, grounded=False)).double()  # a vertical shift keeps speeds
     positions = features_to_positions(raw, torch.from_numpy(skeleton.offsets), skeleton.parents)
     return (positions[:, 1:] - positions[:, :-1]).norm(dim=-1).mean(-1) * model.spec["fps"]
 
