@@ -206,13 +206,11 @@ def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
     A seam is every step from a window's last held frame through its cross-fade; `within_spread` is
     `generation.seams_within_spread`, the criterion the tests hold generation to.
     """
-    from walkdiff.generation import joint_speeds, seam_steps, seams_within_spread
+    from walkdiff.generation import joint_speeds, seam_steps, seams_within_spread, split_seams
 
     speed = joint_speeds(model, x)
     seams = seam_steps(x.shape[1], model.spec["window"], overlap, blend)
-    inside = torch.ones(speed.shape[1], dtype=torch.bool)
-    inside[seams] = False
-    inner, at_seams = speed[:, inside], speed[:, seams]
+    inner, at_seams = split_seams(speed, seams)
     quantiles = inner.quantile(torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64))
     return {
         "seam_mean": round(float(at_seams.mean()), 3),

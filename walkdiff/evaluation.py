@@ -243,7 +243,11 @@ def _load_checkpoint(path: str | Path, what: str) -> dict:
 
 def checkpoint_class(path: str | Path) -> str:
     """The LightningModule class a checkpoint was saved from (older ones: LightningCLI's class path)."""
-    checkpoint = _load_checkpoint(path, "model")
+    path = Path(path)
+    if not path.is_file():
+        raise WalkdiffError("model checkpoint not found", path=path)
+    # Memory-mapped: only the small metadata is read, not the weights (which the command loads itself).
+    checkpoint = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
     hparams = checkpoint.get("hyper_parameters") or {}
     return checkpoint.get("model_class") or hparams.get(
         "_class_path", "walkdiff.models.styled_ddpm.StyledMotionDiffusion"

@@ -115,12 +115,17 @@ def seam_steps(frames: int, window: int, overlap: int, blend: int = 0) -> list[i
     ]
 
 
+def split_seams(speeds: torch.Tensor, seams: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, steps) joint speeds -> (speeds of the steps inside windows, speeds of the seam steps)."""
+    inside = torch.ones(speeds.shape[1], dtype=torch.bool)
+    inside[seams] = False
+    return speeds[:, inside], speeds[:, seams]
+
+
 def seams_within_spread(speeds: torch.Tensor, seams: list[int]) -> bool:
     """No visible seam: over (B, steps) joint speeds, the seams' mean is within the inside mean + 2 sd
     and their maximum within the inside maximum."""
-    inside = torch.ones(speeds.shape[1], dtype=torch.bool)
-    inside[seams] = False
-    inner, at_seams = speeds[:, inside], speeds[:, seams]
+    inner, at_seams = split_seams(speeds, seams)
     return bool(at_seams.mean() <= inner.mean() + 2 * inner.std() and at_seams.max() <= inner.max())
 
 
