@@ -98,3 +98,9 @@ def test_unknown_tracking_uri_fails_before_training(xia_dir, capsys):
     )
     assert code == 1
     assert "http://127.0.0.1:9/" in capsys.readouterr().err
+
+
+def test_cli_offers_every_sampler_generation_knows():
+    from walkdiff import cli, generation
+
+    assert cli.SAMPLERS == generation.SAMPLERS

@@ -173,14 +173,22 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
 
     out = tmp_path / "bench"
     result = bench_sample(
-        str(out), str(ckpt), str(setup["ckpt"]), num=16, ddim_steps=(5,), batch_size=4, repeats=1
-    )
+        str(out), str(ckpt), str(setup["ckpt"]), num=16, ddim_steps=(5,), dpm_steps=(5,), seeds=2,
+        batch_size=4, repeats=1,
+    )  # fmt: skip
     settings = [(row["sampler"], row["steps"], row["eta"]) for row in result["quality"]]
-    assert settings == [("ddpm", 10, 1.0), ("ddim", 5, 0.0), ("ddim", 10, 0.5), ("ddim", 10, 1.0)]
-    assert all(row["fmd"] > 0 and 0 <= row["style_acc"] <= 1 for row in result["quality"])
-    assert result["grounded"] and result["speed"]["step_s"] > 0 and result["speed"]["forward_s"] > 0
+    assert settings == [
+        ("ddpm", 10, 1.0), ("ddim", 5, 0.0), ("ddim", 10, 0.5), ("ddim", 10, 1.0), ("dpmpp", 5, 0.0)
+    ]  # fmt: skip
+    for row in result["quality"]:
+        assert row["fmd"] > 0 and 0 <= row["style_acc"] <= 1 and len(row["fmd_per_seed"]) == 2
+        assert row["fmd"] == pytest.approx(sum(row["fmd_per_seed"]) / 2, abs=1e-3)
+        assert row["fmd_over_ddpm"] == pytest.approx(row["fmd"] / result["quality"][0]["fmd"], abs=1e-3)
+    assert result["quality"][0]["fmd_per_seed"][0] != result["quality"][0]["fmd_per_seed"][1]
+    speed = result["speed"]
+    assert result["grounded"] and speed["step_s"] > 0 and speed["dpmpp_step_s"] > 0 and speed["forward_s"] > 0
     seams = result["seams_300_frames"]
-    assert len(seams) == 6 and all(isinstance(row["within_spread"], bool) for row in seams.values())
+    assert len(seams) == 9 and all(isinstance(row["within_spread"], bool) for row in seams.values())
     assert all(row["seam_mean"] > 0 and row["inside_mean"] > 0 for row in seams.values())
     kept = result["transfer"]["keep_trajectory"]
     assert kept["windows"] > 0 and kept["root_path_error_relative_max"] < 1e-6

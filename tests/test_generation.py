@@ -18,6 +18,7 @@ import torch
 
 from walkdiff.cli import main
 from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.diffusion import GaussianDiffusion, log_snr_timesteps
 from walkdiff.errors import WalkdiffError
 from walkdiff.generation import (
     Sampling,
@@ -29,6 +30,7 @@ from walkdiff.generation import (
     resolve_windows,
     restyle,
     seam_steps,
+    seam_tails,
     seams_within_spread,
     window_plan,
     windowed,
@@ -81,6 +83,23 @@ def test_window_plan_covers_every_frame_once_with_the_overlap_known(frames, over
         assert known == 0 if start == 0 else known >= overlap
         done = start + size
     assert done == frames
+
+
+def test_seam_criterion_passes_seamless_speeds_and_fails_jumps_and_halts():
+    """Seams drawn like the inside steps pass; a speed-up or a halt of a quarter of the spread at every
+    seam fails, however few seams there are."""
+    speeds = torch.rand(64, 299, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 10 + 15
+    seams = list(range(23, 299, 12)) + list(range(20, 299, 12))  # 48 of 299 steps
+    below, above = seam_tails(speeds, seams)
+    assert abs(below - 0.05) < 0.02 and abs(above - 0.05) < 0.02
+    assert seams_within_spread(speeds, seams)
+    for shift in (2.5, -2.5):
+        shifted = speeds.clone()
+        shifted[:, seams] += shift
+        assert not seams_within_spread(shifted, seams), shift
+    spike = speeds.clone()
+    spike[:, seams[:1]] = 100.0
+    assert seam_tails(spike, seams[:1])[1] == 1.0 and not seams_within_spread(spike, seams[:1])
 
 
 def test_window_plan_rejects_bad_overlap():
@@ -170,12 +189,18 @@ def test_guidance_and_style_mixing_sample(model):
 
 def test_noised_steps_start_at_strength():
     class Fake:
-        diffusion = type("D", (), {"num_timesteps": 100})()
+        diffusion = GaussianDiffusion(100, "linear", 1e-3, 0.2)
 
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling())
     assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 0, 60, 1.0)
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling("ddim", 10, eta=0.5))
     assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 0, 6, 0.5)
+    t0, steps, eta = noised_steps(Fake, 0.6, Sampling("dpmpp", 10))  # even in log-SNR below t0
+    assert (t0, steps, eta) == (59, log_snr_timesteps(Fake.diffusion, 6, first=59), 0.0)
+    with pytest.raises(WalkdiffError, match="--eta applies to DDIM only"):
+        Sampling("dpmpp", 10, eta=0.5)
+    with pytest.raises(WalkdiffError, match="expected one of ddpm, ddim, dpmpp"):
+        Sampling("euler")
 
     with pytest.raises(WalkdiffError, match="strength"):
         noised_steps(Fake, 0.0, Sampling())
@@ -234,7 +259,7 @@ def test_transfer_command_resamples_keeps_the_path_and_refuses_other_skeletons(c
     write_bvh(source, clip)
     out = tmp_path / "out"
     common = ["transfer", "--ckpt", str(ckpt), "--input", str(source), "--style", "old", "--out", str(out),
-              "--sampler", "ddim", "--steps", "4"]  # fmt: skip
+              "--sampler", "dpmpp", "--steps", "4"]  # fmt: skip
     assert main(common + ["--keep-trajectory"]) == 0
     result = read_bvh(out / "mine_to_old.bvh")
     assert result.num_frames == 50 and result.fps == pytest.approx(30.0)  # 200 frames at 120 fps

@@ -192,31 +192,44 @@ def bench_train(
 
 
 def _median_seconds(fn, repeats: int) -> float:
-    times = []
+    return _interleaved_medians([fn], repeats)[0]
+
+
+def _interleaved_medians(fns: list, repeats: int) -> list[float]:
+    """Median seconds of each of `fns`, run in turn `repeats` times: timings that are to be compared
+    share the machine's slow and fast moments."""
+    times = [[] for _ in fns]
     for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+        for fn, spent in zip(fns, times, strict=True):
+            start = time.perf_counter()
+            fn()
+            spent.append(time.perf_counter() - start)
+    return [statistics.median(spent) for spent in times]
 
 
 def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
     """Joint speeds (units/s) at the window seams of long samples against the steps inside windows.
 
     A seam is every step from a window's last held frame through its cross-fade; `within_spread` is
-    `generation.seams_within_spread`, the criterion the tests hold generation to.
+    `generation.seams_within_spread` (at most 10% of seam steps beyond either end of the inside 5-95%
+    band), the criterion the tests hold generation to.
     """
-    from walkdiff.generation import joint_speeds, seam_steps, seams_within_spread, split_seams
+    from walkdiff.generation import joint_speeds, seam_steps, seam_tails, seams_within_spread, split_seams
 
     speed = joint_speeds(model, x)
     seams = seam_steps(x.shape[1], model.spec["window"], overlap, blend)
     inner, at_seams = split_seams(speed, seams)
     quantiles = inner.quantile(torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64))
+    below, above = seam_tails(speed, seams)
     return {
         "seam_mean": round(float(at_seams.mean()), 3),
         "seam_p95": round(float(at_seams.quantile(0.95)), 3),
+        "seam_max": round(float(at_seams.max()), 3),
         "inside_mean": round(float(inner.mean()), 3),
         "inside_p05_p50_p95": [round(float(q), 3) for q in quantiles],
+        "inside_max": round(float(inner.max()), 3),
+        "seams_below_inside_p05": round(below, 4),
+        "seams_above_inside_p95": round(above, 4),
         "within_spread": seams_within_spread(speed, seams),
     }
 
@@ -262,18 +275,23 @@ def _plot_quality(path: Path, rows: list[dict]) -> None:
         (axes[0], "fmd", "FMD (lower is better)"),
         (axes[1], "style_acc", "style accuracy"),
     ):
-        ddim = [r for r in rows if r["sampler"] == "ddim" and r["eta"] == 0]
-        ax.plot([r["steps"] for r in ddim], [r[key] for r in ddim], "o-", label="DDIM (eta 0)")
-        for r in rows:
-            if r["sampler"] == "ddim" and r["eta"] > 0:
-                ax.plot([r["steps"]], [r[key]], "^", label=f"DDIM (eta {r['eta']})")
+        for sampler, label_ in (("ddim", "DDIM (eta 0)"), ("dpmpp", "DPM-Solver++(2M)")):
+            line = [r for r in rows if r["sampler"] == sampler and r["eta"] == 0]
+            ax.plot([r["steps"] for r in line], [r[key] for r in line], "o-", label=label_)
+        noisy = [r for r in rows if r["sampler"] == "ddim" and r["eta"] > 0]
+        for r, color in zip(noisy, ("C2", "C4", "C5", "C6"), strict=False):
+            ax.plot([r["steps"]], [r[key]], "^", color=color, label=f"DDIM (eta {r['eta']})")
         for r in rows:
             if r["sampler"] == "ddpm":
                 ax.plot([r["steps"]], [r[key]], "s", color="C3", label="DDPM")
+                if key == "fmd":
+                    ax.axhline(1.1 * r[key], color="C3", ls=":", lw=1, label="DDPM + 10%")
         ax.set_xscale("log")
+        if key == "style_acc":
+            ax.set_ylim(0, 1.05)
         ax.set_xlabel("denoising steps")
         ax.set_title(label)
-        ax.legend()
+        ax.legend(fontsize=7)
     fig.tight_layout()
     tmp = path.with_name(f".{path.name}.tmp.png")
     fig.savefig(tmp, dpi=120)
@@ -288,6 +306,8 @@ def bench_sample(
     num: int = 400,
     seed: int = 0,
     ddim_steps: tuple[int, ...] = (50, 20, 10, 5),
+    dpm_steps: tuple[int, ...] = (20, 10, 5),
+    seeds: int = 3,
     batch_size: int = 32,
     repeats: int = 3,
     strength: float = 0.6,
@@ -296,8 +316,9 @@ def bench_sample(
     """Quality against steps, speed, foot clean-up and transfer of a StyledMotionDiffusion checkpoint.
 
     Writes OUT/sample.json and OUT/sample.png. Quality: FMD and recognition against the real test
-    windows (evaluation.py's scorer) of `num` windows balanced over styles, DDPM over all T steps and DDIM
-    over each of `ddim_steps`, all from one seed.
+    windows (evaluation.py's scorer) of `num` windows balanced over styles, DDPM over all T steps, DDIM
+    over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over `seeds` seeds
+    (the same seeds for every sampler), with each one's ratio to DDPM.
     """
     from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.data.datasets import dataset_module
@@ -325,23 +346,38 @@ def bench_sample(
         return {k: round(values[k], 4) for k in keys}
 
     quality, generated = [], {}
-    # DDIM at eta 0 over the step counts, and at 10 steps with some of DDPM's noise put back (eta > 0).
+    # DDPM over all T steps; DDIM at eta 0 over the step counts and at 10 steps with some of DDPM's noise
+    # put back (eta > 0); DPM-Solver++(2M) over its steps. Each from `seeds` seeds: the FMD of one seed
+    # moves by a few units, as much as some of the differences measured.
     configs = [("ddpm", model.diffusion.num_timesteps, 1.0)]
     configs += [("ddim", k, 0.0) for k in ddim_steps] + [("ddim", 10, eta) for eta in (0.5, 1.0)]
+    configs += [("dpmpp", k, 0.0) for k in dpm_steps]
     for sampler, steps, eta in configs:
-        generator = torch.Generator().manual_seed(seed)
-        start = time.perf_counter()
-        windows = generate_windows(
-            model, num, content_ids, generator, num, ground, sampler=sampler, steps=steps, eta=eta
-        )
-        elapsed = time.perf_counter() - start
-        generated[sampler, steps, eta] = windows
+        runs, elapsed = [], 0.0
+        for s in range(seed, seed + seeds):
+            start = time.perf_counter()
+            windows = generate_windows(
+                model,
+                num,
+                content_ids,
+                torch.Generator().manual_seed(s),
+                num,
+                ground,
+                sampler=sampler,
+                steps=steps,
+                eta=eta,
+            )
+            elapsed += time.perf_counter() - start
+            generated.setdefault((sampler, steps, eta), windows)  # the first seed's, for foot clean-up
+            runs.append(scored(windows))
         row = {"sampler": sampler, "steps": steps, "eta": eta}
-        quality.append(row | scored(windows) | {"seconds": round(elapsed, 2)})
-        print(f"{sampler}-{steps} eta {eta}: {quality[-1]}", flush=True)
-    # What a second seed alone changes: the noise floor of these numbers.
-    windows = generate_windows(model, num, content_ids, torch.Generator().manual_seed(seed + 1), num, ground)
-    ddpm_other_seed = scored(windows)
+        row |= {k: round(statistics.mean(r[k] for r in runs), 4) for k in keys}
+        row |= {"fmd_per_seed": [r["fmd"] for r in runs], "seconds_per_seed": round(elapsed / seeds, 2)}
+        ddpm = quality[0] if quality else row
+        row |= {"fmd_over_ddpm": round(row["fmd"] / ddpm["fmd"], 3)}
+        row |= {"style_acc_over_ddpm": round(row["style_acc"] / ddpm["style_acc"], 3)}
+        quality.append(row)
+        print(f"{sampler}-{steps} eta {eta}: {row}", flush=True)
     real = scored(
         reference.take(torch.randperm(len(reference), generator=torch.Generator().manual_seed(seed))[:num])
     )
@@ -350,7 +386,7 @@ def bench_sample(
     ddpm = generated[configs[0]]
     contacts = dataset_module(spec["dataset"]).CONTACTS
     fixed_raw = torch.from_numpy(fix_feet_features(ddpm.raw.numpy(), model.skeleton, spec["fps"], contacts))
-    fix_feet = {"before": quality[0], "after": scored(replace(ddpm, raw=fixed_raw))}
+    fix_feet = {"before": scored(ddpm), "after": scored(replace(ddpm, raw=fixed_raw))}
 
     # Speed: batch of windows with DDIM-10, per-step cost against one network pass, batch-1 latency.
     torch.manual_seed(seed)
@@ -358,15 +394,20 @@ def bench_sample(
     content = torch.full((batch_size,), content_ids[0])
     window, dim = spec["window"], spec["feature_dim"]
 
-    def ddim10():
-        model.generate(style, content, sampler="ddim", steps=10)
+    def sample10(sampler: str):
+        return lambda: model.generate(style, content, sampler=sampler, steps=10)
 
-    ddim10()  # warm-up
-    batch_s = _median_seconds(ddim10, repeats)
+    sample10("ddim")()  # warm-up
     net, x = model.ema.module.eval(), torch.randn(batch_size, window, dim)
     t = torch.full((batch_size,), 50)
-    with torch.no_grad():
-        forward_s = _median_seconds(lambda: [net(x, t, style, content) for _ in range(10)], repeats) / 10
+
+    def ten_forwards():
+        with torch.no_grad():  # as generate runs the network
+            for _ in range(10):
+                net(x, t, style, content)
+
+    batch_s, dpm_s, ten_s = _interleaved_medians([sample10("ddim"), sample10("dpmpp"), ten_forwards], repeats)
+    forward_s = ten_s / 10
     long_frames = 300
     generate_long(model, style, content, long_frames, Sampling("ddim", 10))  # warm-up
     long_s = _median_seconds(
@@ -380,15 +421,22 @@ def bench_sample(
             ),
             3,
         )
-        for name, s in (("ddim10_s", Sampling("ddim", 10)), ("ddpm_s", Sampling()))
+        for name, s in (
+            ("ddim10_s", Sampling("ddim", 10)),
+            ("dpmpp10_s", Sampling("dpmpp", 10)),
+            ("ddpm_s", Sampling()),
+        )
     }
     speed = {
         "batch": batch_size,
         "ddim10_window_frames_per_s": round(batch_size * window / batch_s, 1),
+        "dpmpp10_window_frames_per_s": round(batch_size * window / dpm_s, 1),
         "ddim10_long_frames_per_s": round(batch_size * long_frames / long_s, 1),
         "step_s": round(batch_s / 10, 5),
+        "dpmpp_step_s": round(dpm_s / 10, 5),
         "forward_s": round(forward_s, 5),
         "step_over_forward": round(batch_s / 10 / forward_s, 3),
+        "dpmpp_step_over_forward": round(dpm_s / 10 / forward_s, 3),
         f"batch1_latency_{two_seconds}_frames": latency,
     }
     # Seams of 300-frame samples: the default overlap held only (blend 0), a third of the window with its
@@ -396,7 +444,12 @@ def bench_sample(
     seams = {}
     for overlap, blend in ((None, 0), (max(1, window // 3), None), (None, None)):
         overlap, blend = resolve_windows(window, overlap, blend)
-        for name, sampling in (("ddpm", Sampling()), ("ddim10", Sampling("ddim", 10))):
+        samplings = (
+            ("ddpm", Sampling()),
+            ("ddim10", Sampling("ddim", 10)),
+            ("dpmpp10", Sampling("dpmpp", 10)),
+        )
+        for name, sampling in samplings:
             x = generate_long(
                 model,
                 style,
@@ -435,8 +488,8 @@ def bench_sample(
         "num": num,
         "seed": seed,
         "grounded": ground,
+        "seeds": seeds,
         "quality": quality,
-        "ddpm_other_seed": ddpm_other_seed,
         "real_test": real,
         "fix_feet": fix_feet,
         "speed": speed,
@@ -500,8 +553,8 @@ def run(args) -> None:
         bench_train(args.out, args.config, args.batches)
     elif args.what == "sample":
         bench_sample(
-            args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, strength=args.strength,
-            ground=args.ground,
+            args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, seeds=args.seeds,
+            strength=args.strength, ground=args.ground,
         )  # fmt: skip
     elif args.what == "gesture":
         bench_gesture(args.out, args.ckpt, args.frames)

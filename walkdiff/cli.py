@@ -8,6 +8,13 @@ import sys
 
 from walkdiff.errors import WalkdiffError
 
+# generation.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
+SAMPLERS = ("ddpm", "ddim", "dpmpp")
+SAMPLER_HELP = (
+    "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "
+    "solved to second order, closer to DDPM at 10 steps for the same cost"
+)
+
 LIGHTNING_VERBS = ("fit", "validate", "test")
 
 
@@ -94,8 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=20, help="repeats (default 20)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--real-only", action="store_true", help="only the real reference rows")
-    p.add_argument("--sampler", choices=("ddpm", "ddim"), default="ddpm")
-    p.add_argument("--steps", type=int, default=None, help="DDIM steps")
+    p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
+    p.add_argument("--steps", type=int, default=None, help="DDIM / DPM-Solver++ steps (default 10)")
     p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance weight")
     p.add_argument("--split", choices=("test", "val"), default="test", help="real reference split")
     p.add_argument("--contents", default=None, help="content groups (default: the model's; or walk)")
@@ -116,8 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--style", required=True, help="a style, or a mix: angry:0.7,old:0.3")
         p.add_argument("--content", default="walk", help="content group (default walk)")
         p.add_argument("--seed", type=int, default=0)
-        p.add_argument("--sampler", choices=("ddpm", "ddim"), default="ddpm")
-        p.add_argument("--steps", type=int, default=None, help="DDIM steps (default 10)")
+        p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
+        p.add_argument("--steps", type=int, default=None, help="DDIM / DPM-Solver++ steps (default 10)")
         p.add_argument("--eta", type=float, default=0.0, help="DDIM noise (0: deterministic)")
         p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance (1: none)")
         p.add_argument(
@@ -205,7 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
     b.add_argument("--out", required=True, help="folder for sample.json and sample.png")
     b.add_argument("--num", type=int, default=400, help="windows per sampler setting (default 400)")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    b.add_argument("--seeds", type=int, default=3, help="seeds averaged per sampler setting (default 3)")
     b.add_argument("--strength", type=float, default=0.6, help="transfer noise level (default 0.6)")
     b.add_argument(
         "--no-ground", dest="ground", action="store_false",

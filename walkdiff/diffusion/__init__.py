@@ -1,12 +1,15 @@
-"""Motion-agnostic diffusion: noise schedules, the Gaussian forward process, DDPM/DDIM samplers, guidance."""
+"""Motion-agnostic diffusion: noise schedules, the Gaussian forward process, samplers (DDPM, DDIM,
+DPM-Solver++), guidance."""
 
 from walkdiff.diffusion.gaussian import PREDICTIONS, GaussianDiffusion, extract
 from walkdiff.diffusion.samplers import (
     SamplerSteps,
     ddim_sample,
     ddpm_sample,
+    dpm_solver_sample,
     guided,
     guided_batched,
+    log_snr_timesteps,
     respace,
     run_steps,
     step_coefficients,
@@ -22,9 +25,11 @@ __all__ = [
     "cosine_alphas_cumprod",
     "ddim_sample",
     "ddpm_sample",
+    "dpm_solver_sample",
     "extract",
     "guided",
     "guided_batched",
+    "log_snr_timesteps",
     "respace",
     "run_steps",
     "step_coefficients",

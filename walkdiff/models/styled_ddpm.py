@@ -40,7 +40,14 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from walkdiff.data.datamodule import DataSpec
 from walkdiff.data.datasets import dataset_module
-from walkdiff.diffusion import GaussianDiffusion, ddim_sample, ddpm_sample, guided, guided_batched
+from walkdiff.diffusion import (
+    GaussianDiffusion,
+    ddim_sample,
+    ddpm_sample,
+    dpm_solver_sample,
+    guided,
+    guided_batched,
+)
 from walkdiff.errors import WalkdiffError
 from walkdiff.footfix import ground, planted_heights
 from walkdiff.models.base import MotionModule
@@ -363,7 +370,9 @@ class StyledMotionDiffusion(MotionModule):
             return ddpm_sample(model_fn, self.diffusion, shape, **common)
         if sampler == "ddim":
             return ddim_sample(model_fn, self.diffusion, shape, steps or 10, eta, **common)
-        raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm or ddim")
+        if sampler == "dpmpp":
+            return dpm_solver_sample(model_fn, self.diffusion, shape, steps or 10, **common)
+        raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm, ddim or dpmpp")
 
     def model_fn(self, style: torch.Tensor, content: torch.Tensor, guidance: float = 1.0):
         """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance."""
