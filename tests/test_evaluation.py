@@ -194,3 +194,22 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
     assert kept["windows"] > 0 and kept["root_path_error_relative_max"] < 1e-6
     assert json.loads((out / "sample.json").read_text())["quality"] == result["quality"]
     assert (out / "sample.png").stat().st_size > 0
+
+    # A distilled student against its teacher: the teacher's DDPM is the reference of every ratio.
+    from walkdiff.bench import bench_distill
+    from walkdiff.distill import distill
+    from walkdiff.errors import WalkdiffError
+
+    evaluator, report_path = str(setup["ckpt"]), str(tmp_path / "d.json")
+    with pytest.raises(WalkdiffError, match="not a distilled checkpoint"):
+        bench_distill(report_path, str(ckpt), str(ckpt), evaluator, num=8, seeds=1)
+    student = tmp_path / "student.ckpt"
+    distill(str(ckpt), str(student), steps=4, iterations=2)
+    report = bench_distill(report_path, str(ckpt), str(student), evaluator, num=16, seeds=1)
+    rows = [(r["model"], r["sampler"], r["steps"]) for r in report["quality"]]
+    assert rows == [("teacher", "ddpm", 10), ("teacher", "ddim", 4), ("teacher", "dpmpp", 4),
+                    ("student", "ddpm", 10), ("student", "ddim", 4), ("student", "ddim", 2)]  # fmt: skip
+    assert report["quality"][0]["fmd_over_ddpm"] == 1.0 and report["distilled"]["steps"] == 4
+    quality = report["quality"]
+    assert quality[3]["fmd_over_own_ddpm"] == 1.0 and "fmd_over_own_ddpm" not in quality[1]
+    assert json.loads((tmp_path / "d.json").read_text())["quality"] == report["quality"]

@@ -281,6 +281,31 @@ def test_transfer_command_resamples_keeps_the_path_and_refuses_other_skeletons(c
     assert np.isfinite(result.rotations).all()
 
 
+def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tmp_path, capsys):
+    student_path = tmp_path / "student.ckpt"
+    args = ["distill", "--ckpt", str(ckpt), "--out", str(student_path), "--steps", "4", "--iterations", "3"]
+    assert main(args) == 0
+    assert "batch" not in capsys.readouterr().out.split("distilling")[0]  # progress comes after the banner
+    record = torch.load(student_path, map_location="cpu", weights_only=False)["distilled"]
+    assert record["teacher"] == str(ckpt) and record["steps"] == 4 and record["batches"] == 3
+    student = load_generator(student_path)
+    moved = [
+        not torch.equal(a, b)
+        for a, b in zip(student.ema.module.parameters(), model.ema.module.parameters(), strict=True)
+    ]
+    assert any(moved)
+    torch.testing.assert_close(
+        dict(student.ema.module.named_parameters())["input.weight"],
+        dict(student.denoiser.named_parameters())["input.weight"],
+    )
+    out = tmp_path / "samples"
+    assert main(["sample", "--ckpt", str(student_path), "--style", "old", "--num", "1", "--frames", "30",
+                 "--sampler", "ddim", "--steps", "4", "--no-gif", "--out", str(out)]) == 0  # fmt: skip
+    assert read_bvh(out / "old_walk_000.bvh").num_frames == 30
+    assert main(args) == 1
+    assert "would overwrite" in capsys.readouterr().err
+
+
 def test_a_checkpoint_without_planted_heights_loads_but_refuses_grounding(ckpt, tmp_path):
     old = torch.load(ckpt, map_location="cpu", weights_only=False)
     del old["state_dict"]["planted_height"]  # as saved before walkdiff measured planted feet

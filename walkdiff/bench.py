@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_json
 
 
@@ -191,6 +192,64 @@ def bench_train(
 # ---------------------------------------------------------------- sampling
 
 
+def bench_distill(
+    out: str,
+    teacher: str,
+    student: str,
+    evaluator: str,
+    num: int = 256,
+    seed: int = 0,
+    seeds: int = 3,
+    ground: bool = True,
+) -> dict:
+    """A distilled student's DDIM samples against its teacher's DDPM-100, DDIM and DPM-Solver++.
+
+    Writes OUT (JSON): the teacher's DDPM over all T steps (the reference of `fmd_over_ddpm`), DDIM and
+    DPM-Solver++(2M) at the student's step count; the student's DDPM (the reference of its rows'
+    `fmd_over_own_ddpm`) and DDIM at that count and at half of it. Each the mean over `seeds` seeds (the
+    same for all), scored on the teacher's real test windows.
+    """
+    from walkdiff.generation import load_generator
+
+    teacher_model, student_model = load_generator(teacher), load_generator(student)
+    record = torch.load(student, map_location="cpu", weights_only=False, mmap=True).get("distilled")
+    if record is None:
+        raise WalkdiffError("not a distilled checkpoint (made by `walkdiff distill`)", path=student)
+    steps = record["steps"]
+    bench = _QualityBench(teacher_model, teacher, evaluator, num, seed, seeds, ground)
+    ddpm_steps = teacher_model.diffusion.num_timesteps
+    rows = []
+    for who, model, sampler, k in (
+        ("teacher", teacher_model, "ddpm", ddpm_steps),
+        ("teacher", teacher_model, "ddim", steps),
+        ("teacher", teacher_model, "dpmpp", steps),
+        ("student", student_model, "ddpm", ddpm_steps),
+        ("student", student_model, "ddim", steps),
+        ("student", student_model, "ddim", max(1, steps // 2)),
+    ):
+        row, _ = bench.row(model, sampler, k, 1.0 if sampler == "ddpm" else 0.0)
+        rows.append(_with_ratios({"model": who} | row, rows[0] if rows else row))
+    # The student's own DDPM too: distillation also moves the network at the steps DDPM uses.
+    own = rows[3]
+    for row in rows[3:]:
+        row["fmd_over_own_ddpm"] = round(row["fmd"] / own["fmd"], 3)
+    result = {
+        "benchmark": "distill",
+        "teacher": teacher,
+        "student": student,
+        "distilled": record,
+        "evaluator": evaluator,
+        "num": num,
+        "seed": seed,
+        "seeds": seeds,
+        "grounded": ground,
+        "quality": rows,
+        "machine": machine(),
+    }
+    report(out, result)
+    return result
+
+
 def _median_seconds(fn, repeats: int) -> float:
     return _interleaved_medians([fn], repeats)[0]
 
@@ -299,6 +358,58 @@ def _plot_quality(path: Path, rows: list[dict]) -> None:
     os.replace(tmp, path)
 
 
+class _QualityBench:
+    """FMD and recognition of generated windows against the real test windows of a generator's data
+    (evaluation.py's scorer), each setting from `seeds` seeds (the same seeds for every setting): one
+    seed's FMD moves by a few units, as much as some of the differences measured."""
+
+    keys = ("fmd", "style_acc", "content_acc", "diversity", "skate_ratio", "slide_speed", "jitter")
+
+    def __init__(self, model, ckpt: str, evaluator: str, num: int, seed: int, seeds: int, ground: bool):
+        from walkdiff.data.datamodule import MotionDataModule
+        from walkdiff.evaluation import MotionScorer, data_settings, load_evaluator, window_set
+
+        checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)
+        self.datamodule = MotionDataModule(**data_settings(checkpoint))
+        spec = model.spec
+        self.scorer = MotionScorer(load_evaluator(evaluator), model.skeleton, spec["fps"])
+        self.reference = self.scorer.embed(window_set(self.datamodule.split_features("test"), spec["window"]))
+        self.scorer.set_reference(self.reference)
+        self.content_ids = [list(spec["contents"]).index(name) for name in self.datamodule.selection.names]
+        self.num, self.seed, self.seeds, self.ground = num, seed, seeds, ground
+
+    def scored(self, windows) -> dict:
+        values = self.scorer.score(self.scorer.embed(windows), seed=self.seed)
+        return {k: round(values[k], 4) for k in self.keys}
+
+    def row(self, model, sampler: str, steps: int, eta: float):
+        """(the setting's mean scores over the seeds, the first seed's windows)."""
+        from walkdiff.evaluation import generate_windows
+
+        runs, elapsed, first = [], 0.0, None
+        for s in range(self.seed, self.seed + self.seeds):
+            start = time.perf_counter()
+            windows = generate_windows(
+                model, self.num, self.content_ids, torch.Generator().manual_seed(s), self.num, self.ground,
+                sampler=sampler, steps=steps, eta=eta,
+            )  # fmt: skip
+            elapsed += time.perf_counter() - start
+            first = windows if first is None else first
+            runs.append(self.scored(windows))
+        row = {"sampler": sampler, "steps": steps, "eta": eta}
+        row |= {k: round(statistics.mean(r[k] for r in runs), 4) for k in self.keys}
+        row |= {"fmd_per_seed": [r["fmd"] for r in runs], "seconds_per_seed": round(elapsed / self.seeds, 2)}
+        print(f"{sampler}-{steps} eta {eta}: {row}", flush=True)
+        return row, first
+
+
+def _with_ratios(row: dict, reference: dict) -> dict:
+    return row | {
+        "fmd_over_ddpm": round(row["fmd"] / reference["fmd"], 3),
+        "style_acc_over_ddpm": round(row["style_acc"] / reference["style_acc"], 3),
+    }
+
+
 def bench_sample(
     out: str,
     ckpt: str,
@@ -320,64 +431,23 @@ def bench_sample(
     over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over `seeds` seeds
     (the same seeds for every sampler), with each one's ratio to DDPM.
     """
-    from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.data.datasets import dataset_module
-    from walkdiff.evaluation import (
-        MotionScorer,
-        data_settings,
-        generate_windows,
-        load_evaluator,
-        window_set,
-    )
     from walkdiff.footfix import fix_feet_features
     from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
 
     model = load_generator(ckpt)
-    dm = MotionDataModule(**data_settings(torch.load(ckpt, map_location="cpu", weights_only=False)))
-    spec = model.spec
-    scorer = MotionScorer(load_evaluator(evaluator), model.skeleton, spec["fps"])
-    reference = scorer.embed(window_set(dm.split_features("test"), spec["window"]))
-    scorer.set_reference(reference)
-    content_ids = [list(spec["contents"]).index(name) for name in dm.selection.names]
-    keys = ("fmd", "style_acc", "content_acc", "diversity", "skate_ratio", "slide_speed", "jitter")
-
-    def scored(windows) -> dict:
-        values = scorer.score(scorer.embed(windows), seed=seed)
-        return {k: round(values[k], 4) for k in keys}
-
-    quality, generated = [], {}
+    bench = _QualityBench(model, ckpt, evaluator, num, seed, seeds, ground)
+    dm, spec, reference, scored = bench.datamodule, model.spec, bench.reference, bench.scored
+    content_ids = bench.content_ids
     # DDPM over all T steps; DDIM at eta 0 over the step counts and at 10 steps with some of DDPM's noise
-    # put back (eta > 0); DPM-Solver++(2M) over its steps. Each from `seeds` seeds: the FMD of one seed
-    # moves by a few units, as much as some of the differences measured.
+    # put back (eta > 0); DPM-Solver++(2M) over its steps.
     configs = [("ddpm", model.diffusion.num_timesteps, 1.0)]
     configs += [("ddim", k, 0.0) for k in ddim_steps] + [("ddim", 10, eta) for eta in (0.5, 1.0)]
     configs += [("dpmpp", k, 0.0) for k in dpm_steps]
-    for sampler, steps, eta in configs:
-        runs, elapsed = [], 0.0
-        for s in range(seed, seed + seeds):
-            start = time.perf_counter()
-            windows = generate_windows(
-                model,
-                num,
-                content_ids,
-                torch.Generator().manual_seed(s),
-                num,
-                ground,
-                sampler=sampler,
-                steps=steps,
-                eta=eta,
-            )
-            elapsed += time.perf_counter() - start
-            generated.setdefault((sampler, steps, eta), windows)  # the first seed's, for foot clean-up
-            runs.append(scored(windows))
-        row = {"sampler": sampler, "steps": steps, "eta": eta}
-        row |= {k: round(statistics.mean(r[k] for r in runs), 4) for k in keys}
-        row |= {"fmd_per_seed": [r["fmd"] for r in runs], "seconds_per_seed": round(elapsed / seeds, 2)}
-        ddpm = quality[0] if quality else row
-        row |= {"fmd_over_ddpm": round(row["fmd"] / ddpm["fmd"], 3)}
-        row |= {"style_acc_over_ddpm": round(row["style_acc"] / ddpm["style_acc"], 3)}
-        quality.append(row)
-        print(f"{sampler}-{steps} eta {eta}: {row}", flush=True)
+    quality, generated = [], {}
+    for config in configs:
+        row, generated[config] = bench.row(model, *config)
+        quality.append(_with_ratios(row, quality[0] if quality else row))
     real = scored(
         reference.take(torch.randperm(len(reference), generator=torch.Generator().manual_seed(seed))[:num])
     )
@@ -467,7 +537,7 @@ def bench_sample(
     for keep in (False, True):
         windows, source_style, errors = _transfer_windows(model, dm, strength, keep, seed, ground)
         values = scored(windows)
-        embedded = scorer.embed(windows)
+        embedded = bench.scorer.embed(windows)
         transfer["keep_trajectory" if keep else "free"] = {
             "windows": len(windows),
             "target_style_acc": values["style_acc"],
@@ -555,6 +625,11 @@ def run(args) -> None:
         bench_sample(
             args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, seeds=args.seeds,
             strength=args.strength, ground=args.ground,
+        )  # fmt: skip
+    elif args.what == "distill":
+        bench_distill(
+            args.out, args.teacher, args.student, args.evaluator, num=args.num, seed=args.seed,
+            seeds=args.seeds, ground=args.ground,
         )  # fmt: skip
     elif args.what == "gesture":
         bench_gesture(args.out, args.ckpt, args.frames)

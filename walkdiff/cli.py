@@ -186,6 +186,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pck-threshold", type=float, default=10.0, help="PCK distance (default 10 units)")
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
 
+    p = sub.add_parser(
+        "distill", help="train a student of a generator that samples with DDIM in few steps (default 10)"
+    )
+    p.add_argument("--ckpt", required=True, help="teacher: a StyledMotionDiffusion checkpoint")
+    p.add_argument("--out", required=True, help="student checkpoint to write")
+    p.add_argument("--steps", type=int, default=10, help="DDIM steps the student is made for (default 10)")
+    p.add_argument("--minutes", type=float, default=15.0, help="training time (default 15)")
+    p.add_argument("--iterations", type=int, default=None, help="stop after this many batches")
+    p.add_argument("--lr", type=float, default=3e-5, help="Adam learning rate (default 3e-5)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+
     p = sub.add_parser("bench", help="benchmarks; results written as JSON")
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     b = bench.add_parser("data", help="cold/warm preprocessing of the dataset and DataLoader throughput")
@@ -207,18 +219,27 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")
     b.add_argument("--out", required=True, help="JSON file; the plot goes next to it as .png")
     b.add_argument("--seed", type=int, default=0)
+
+    def quality_options(b: argparse.ArgumentParser, num: int) -> None:
+        b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+        b.add_argument("--num", type=int, default=num, help=f"windows per setting and seed (default {num})")
+        b.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+        b.add_argument("--seeds", type=int, default=3, help="seeds averaged per setting (default 3)")
+        b.add_argument(
+            "--no-ground", dest="ground", action="store_false",
+            help="score windows as sampled (needed for checkpoints saved before grounding existed)",
+        )  # fmt: skip
+
+    b = bench.add_parser("distill", help="a distilled student's DDIM FMD against its teacher's DDPM")
+    b.add_argument("--teacher", required=True, help="the checkpoint the student was distilled from")
+    b.add_argument("--student", required=True, help="the checkpoint `walkdiff distill` wrote")
+    b.add_argument("--out", required=True, help="JSON file")
+    quality_options(b, 256)
     b = bench.add_parser("sample", help="FMD/style accuracy vs sampling steps, speed, --fix-feet, transfer")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
-    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
     b.add_argument("--out", required=True, help="folder for sample.json and sample.png")
-    b.add_argument("--num", type=int, default=400, help="windows per sampler setting (default 400)")
-    b.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    b.add_argument("--seeds", type=int, default=3, help="seeds averaged per sampler setting (default 3)")
     b.add_argument("--strength", type=float, default=0.6, help="transfer noise level (default 0.6)")
-    b.add_argument(
-        "--no-ground", dest="ground", action="store_false",
-        help="score windows as sampled (needed for checkpoints saved before grounding existed)",
-    )  # fmt: skip
+    quality_options(b, 400)
     return parser
 
 
@@ -291,6 +312,12 @@ def run_command(args: argparse.Namespace) -> int:
         options = vars(args).copy()
         del options["command"]
         print(json.dumps(walk(**options), indent=2))
+    elif args.command == "distill":
+        from walkdiff.distill import distill
+
+        options = vars(args).copy()
+        del options["command"]
+        distill(**options)
     elif args.command == "bench":
         from walkdiff import bench
 
