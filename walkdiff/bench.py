@@ -227,12 +227,17 @@ def bench_distill(
         ("student", student_model, "ddim", steps),
         ("student", student_model, "ddim", max(1, steps // 2)),
     ):
-        row, _ = bench.row(model, sampler, k, 1.0 if sampler == "ddpm" else 0.0)
+        row, windows = bench.row(model, sampler, k, 1.0 if sampler == "ddpm" else 0.0)
         rows.append(_with_ratios({"model": who} | row, rows[0] if rows else row))
+        if (who, sampler, k) == ("student", "ddim", steps):
+            student_windows = windows
     # The student's own DDPM too: distillation also moves the network at the steps DDPM uses.
     own = rows[3]
     for row in rows[3:]:
         row["fmd_over_own_ddpm"] = round(row["fmd"] / own["fmd"], 3)
+    # --fix-feet on the samples the student is for (first seed), as `bench sample` does on DDPM's.
+    fixed = _fix_feet(student_model, student_windows)
+    fix_feet = {"before": bench.scored(student_windows), "after": bench.scored(fixed)}
     result = {
         "benchmark": "distill",
         "teacher": teacher,
@@ -244,6 +249,7 @@ def bench_distill(
         "seeds": seeds,
         "grounded": ground,
         "quality": rows,
+        "student_ddim_fix_feet": fix_feet,
         "machine": machine(),
     }
     report(out, result)
@@ -403,6 +409,16 @@ class _QualityBench:
         return row, first
 
 
+def _fix_feet(model, windows):
+    """The windows with `--fix-feet` applied to their raw features."""
+    from walkdiff.data.datasets import dataset_module
+    from walkdiff.footfix import fix_feet_features
+
+    contacts = dataset_module(model.spec["dataset"]).CONTACTS
+    raw = fix_feet_features(windows.raw.numpy(), model.skeleton, model.spec["fps"], contacts)
+    return replace(windows, raw=torch.from_numpy(raw))
+
+
 def _with_ratios(row: dict, reference: dict) -> dict:
     return row | {
         "fmd_over_ddpm": round(row["fmd"] / reference["fmd"], 3),
@@ -431,8 +447,6 @@ def bench_sample(
     over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over `seeds` seeds
     (the same seeds for every sampler), with each one's ratio to DDPM.
     """
-    from walkdiff.data.datasets import dataset_module
-    from walkdiff.footfix import fix_feet_features
     from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
 
     model = load_generator(ckpt)
@@ -454,9 +468,7 @@ def bench_sample(
 
     # Foot clean-up on the DDPM windows, scored the same way.
     ddpm = generated[configs[0]]
-    contacts = dataset_module(spec["dataset"]).CONTACTS
-    fixed_raw = torch.from_numpy(fix_feet_features(ddpm.raw.numpy(), model.skeleton, spec["fps"], contacts))
-    fix_feet = {"before": scored(ddpm), "after": scored(replace(ddpm, raw=fixed_raw))}
+    fix_feet = {"before": scored(ddpm), "after": scored(_fix_feet(model, ddpm))}
 
     # Speed: batch of windows with DDIM-10, per-step cost against one network pass, batch-1 latency.
     torch.manual_seed(seed)
