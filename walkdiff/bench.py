@@ -227,17 +227,16 @@ def bench_distill(
         ("student", student_model, "ddim", steps),
         ("student", student_model, "ddim", max(1, steps // 2)),
     ):
-        row, windows = bench.row(model, sampler, k, 1.0 if sampler == "ddpm" else 0.0)
+        row, first_seed = bench.row(model, sampler, k, 1.0 if sampler == "ddpm" else 0.0)
         rows.append(_with_ratios({"model": who} | row, rows[0] if rows else row))
         if (who, sampler, k) == ("student", "ddim", steps):
-            student_windows = windows
+            student_windows, student_scores = first_seed
     # The student's own DDPM too: distillation also moves the network at the steps DDPM uses.
     own = rows[3]
     for row in rows[3:]:
         row["fmd_over_own_ddpm"] = round(row["fmd"] / own["fmd"], 3)
     # --fix-feet on the samples the student is for (first seed), as `bench sample` does on DDPM's.
-    fixed = _fix_feet(student_model, student_windows)
-    fix_feet = {"before": bench.scored(student_windows), "after": bench.scored(fixed)}
+    fix_feet = {"before": student_scores, "after": bench.scored(_fix_feet(student_model, student_windows))}
     result = {
         "benchmark": "distill",
         "teacher": teacher,
@@ -389,7 +388,7 @@ class _QualityBench:
         return {k: round(values[k], 4) for k in self.keys}
 
     def row(self, model, sampler: str, steps: int, eta: float):
-        """(the setting's mean scores over the seeds, the first seed's windows)."""
+        """(the setting's mean scores over the seeds, the first seed's windows and their scores)."""
         from walkdiff.evaluation import generate_windows
 
         runs, elapsed, first = [], 0.0, None
@@ -406,7 +405,7 @@ class _QualityBench:
         row |= {k: round(statistics.mean(r[k] for r in runs), 4) for k in self.keys}
         row |= {"fmd_per_seed": [r["fmd"] for r in runs], "seconds_per_seed": round(elapsed / self.seeds, 2)}
         print(f"{sampler}-{steps} eta {eta}: {row}", flush=True)
-        return row, first
+        return row, (first, runs[0])
 
 
 def _fix_feet(model, windows):
@@ -467,8 +466,8 @@ def bench_sample(
     )
 
     # Foot clean-up on the DDPM windows, scored the same way.
-    ddpm = generated[configs[0]]
-    fix_feet = {"before": scored(ddpm), "after": scored(_fix_feet(model, ddpm))}
+    ddpm, ddpm_scores = generated[configs[0]]
+    fix_feet = {"before": ddpm_scores, "after": scored(_fix_feet(model, ddpm))}
 
     # Speed: batch of windows with DDIM-10, per-step cost against one network pass, batch-1 latency.
     torch.manual_seed(seed)

@@ -58,6 +58,11 @@ class Sampling:
         if self.steps is not None and self.steps < 1:
             raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
 
+    @property
+    def order(self) -> int:
+        """Order of the solver step (step_coefficients): 2 for DPM-Solver++, 1 for DDPM and DDIM."""
+        return 2 if self.sampler == "dpmpp" else 1
+
 
 # ---------------------------------------------------------------- labels
 
@@ -263,7 +268,7 @@ def restyle(
     """Normalised source features (B, F, D) noised to strength·T and denoised under `style` and `content`."""
     diffusion = model.diffusion
     t0, timesteps, eta = noised_steps(model, strength, sampling)
-    table = step_coefficients(diffusion, timesteps, eta, 2 if sampling.sampler == "dpmpp" else 1)
+    table = step_coefficients(diffusion, timesteps, eta, sampling.order)
     model_fn = model.model_fn(style, content, sampling.guidance)
     layout = FeatureLayout.from_dim(source.shape[-1])
     root = torch.zeros(source.shape[-1], dtype=torch.bool)
