@@ -52,3 +52,60 @@ def test_one_ddim_step_with_the_target_lands_on_the_teachers_solution():
         torch.testing.assert_close(student_x_s, teacher_x_s, atol=1e-9, rtol=1e-9)
         # The target is not the teacher's own one-step estimate: that is DDIM's error being removed.
         assert not torch.allclose(target, net(x_t, torch.full((4,), timesteps[k])), atol=1e-3)
+
+
+def test_the_preserved_share_is_held_to_the_teacher_without_a_jump():
+    """Preserved rows (jump 0, any step) learn the teacher's own output; the others a DDIM target at a
+    kept step, with the jump to the next kept step."""
+    from walkdiff.distill import student_targets
+
+    diffusion = _diffusion("eps")
+    timesteps = respace(100, 10)
+    paths = teacher_paths(diffusion, timesteps)
+
+    def teacher(x, t, style, content):  # depends on every input, so misaligned rows would show
+        return 0.5 * x + (t.float() / 100 + style + 10 * content).view(-1, 1, 1)
+
+    n = 4000
+    batch = {"features": torch.randn(n, 4, 2), "style": torch.arange(n) % 8, "content": torch.arange(n) % 3}
+    torch.manual_seed(0)
+    x_t, t, jump, target = student_targets(teacher, diffusion, batch, timesteps, paths, 0.25)
+    held = jump == 0
+    assert abs(held.float().mean().item() - 0.25) < 0.03
+    assert len(set(t[held].tolist())) > 90  # every trained step, the kept ones too
+    assert set(t[~held].tolist()) == set(timesteps)
+    expected_jumps = {99: 11, 88: 11, 11: 11, 0: 1}
+    assert all(jump[i].item() == expected_jumps.get(t[i].item(), 11) for i in torch.nonzero(~held)[:, 0])
+    style, content = batch["style"], batch["content"]
+    torch.testing.assert_close(target[held], teacher(x_t[held], t[held], style[held], content[held]))
+    # The distilled rows ask for something else than the teacher's one-step output (but the last step).
+    moved = ~held & (t > 0)
+    one_step = teacher(x_t[moved], t[moved], style[moved], content[moved])
+    assert (target[moved] - one_step).abs().amax(dim=(1, 2)).min() > 1e-4
+
+    small = {k: v[:200] for k, v in batch.items()}
+    assert (student_targets(teacher, diffusion, small, timesteps, paths, 0.0)[2] > 0).all()
+
+
+def test_the_jump_embedding_starts_as_the_plain_denoiser_and_is_used_only_above_one():
+    from walkdiff.models.denoiser import MotionDenoiser
+    from walkdiff.models.styled_ddpm import ddim_jumps
+
+    torch.manual_seed(0)
+    net = MotionDenoiser(6, 3, 2, d_model=16, layers=1, heads=2, dropout=0.0).eval()
+    x, t = torch.randn(4, 5, 6), torch.tensor([99, 50, 11, 0])
+    style, content = torch.tensor([0, 1, 2, 0]), torch.tensor([0, 1, 0, 1])
+    plain = net(x, t, style, content)
+    with pytest.raises(ValueError, match="not distilled"):
+        net(x, t, style, content, torch.full((4,), 11))
+    net.add_jump_conditioning()
+    jump = torch.tensor([11, 11, 1, 0])
+    torch.testing.assert_close(net(x, t, style, content, jump), plain)  # zero at the start
+    torch.nn.init.normal_(net.jump_mlp[2].weight)
+    jumped = net(x, t, style, content, jump)
+    assert not torch.allclose(jumped[:2], plain[:2], atol=1e-3)  # jumps of 11 move the output
+    torch.testing.assert_close(jumped[2:], plain[2:])  # 1 and 0: the plain denoiser
+
+    jumps = ddim_jumps(100, 10)
+    assert jumps[99] == jumps[88] == jumps[11] == 11 and jumps[0] == 1
+    assert int((jumps > 0).sum()) == 10 and jumps[50] == 0

@@ -243,6 +243,7 @@ def test_sample_command_writes_bvh_gif_manifest_and_refuses_to_overwrite(ckpt, m
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["checkpoint"] == str(ckpt) and manifest["seed"] == 5
     assert manifest["settings"]["sampler"] == "ddim" and manifest["settings"]["steps"] == 2
+    assert manifest["settings"]["distilled_jumps"] is False  # a trained model, not a student
     assert manifest["timing"]["generate_s"] > 0
 
     before = (out / "angry70+old30_walk_000.bvh").read_text()
@@ -292,11 +293,24 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     record = torch.load(student_path, map_location="cpu", weights_only=False)["distilled"]
     assert record["teacher"] == str(ckpt) and record["steps"] == 4 and record["batches"] == 3
     student = load_generator(student_path)
-    moved = [
-        not torch.equal(a, b)
-        for a, b in zip(student.ema.module.parameters(), model.ema.module.parameters(), strict=True)
-    ]
-    assert any(moved)
+    assert student.hparams.distilled_steps == 4
+    weights = dict(student.ema.module.named_parameters())
+    moved = [not torch.equal(weights[name], p) for name, p in model.ema.module.named_parameters()]
+    assert any(moved) and weights["jump_mlp.2.weight"].abs().sum() > 0
+
+    # Deterministic DDIM over the distilled step count gives the network the jumps; nothing else does.
+    seen = []
+    forward = student.ema.module.forward
+    student.ema.module.forward = lambda x, t, s, c, jump=None: seen.append(jump) or forward(x, t, s, c, jump)
+    style, content = torch.tensor([0, 1]), torch.tensor([0, 0])
+    student.generate(style, content, sampler="ddim", steps=4)
+    assert [j.tolist() for j in seen] == [[33, 33]] * 3 + [[1, 1]]  # from 99, 66, 33, and 0 to data
+    seen.clear()
+    student.generate(style, content, sampler="ddim", steps=5)
+    student.generate(style, content, sampler="dpmpp", steps=4)
+    student.generate(style, content, sampler="ddim", steps=4, eta=0.5)
+    assert len(seen) == 13 and all(j is None for j in seen)
+    del student.ema.module.forward
     torch.testing.assert_close(
         dict(student.ema.module.named_parameters())["input.weight"],
         dict(student.denoiser.named_parameters())["input.weight"],
@@ -305,6 +319,7 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     assert main(["sample", "--ckpt", str(student_path), "--style", "old", "--num", "1", "--frames", "30",
                  "--sampler", "ddim", "--steps", "4", "--no-gif", "--out", str(out)]) == 0  # fmt: skip
     assert read_bvh(out / "old_walk_000.bvh").num_frames == 30
+    assert json.loads((out / "manifest.json").read_text())["settings"]["distilled_jumps"] is True
     assert main(args) == 1
     assert "would overwrite" in capsys.readouterr().err
 

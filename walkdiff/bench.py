@@ -231,10 +231,11 @@ def bench_distill(
         rows.append(_with_ratios({"model": who} | row, rows[0] if rows else row))
         if (who, sampler, k) == ("student", "ddim", steps):
             student_windows, student_scores = first_seed
-    # The student's own DDPM too: distillation also moves the network at the steps DDPM uses.
+    # The student's own DDPM too: one checkpoint, both samplers (distill's `preserve` keeps its DDPM).
     own = rows[3]
     for row in rows[3:]:
         row["fmd_over_own_ddpm"] = round(row["fmd"] / own["fmd"], 3)
+        row["style_acc_over_own_ddpm"] = round(row["style_acc"] / own["style_acc"], 3)
     # --fix-feet on the samples the student is for (first seed), as `bench sample` does on DDPM's.
     fix_feet = {"before": student_scores, "after": bench.scored(_fix_feet(student_model, student_windows))}
     result = {
@@ -446,7 +447,9 @@ def bench_sample(
     over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over `seeds` seeds
     (the same seeds for every sampler), with each one's ratio to DDPM.
     """
+    from walkdiff.diffusion import respace
     from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
+    from walkdiff.models.styled_ddpm import ddim_jumps
 
     model = load_generator(ckpt)
     bench = _QualityBench(model, ckpt, evaluator, num, seed, seeds, ground)
@@ -479,13 +482,15 @@ def bench_sample(
         return lambda: model.generate(style, content, sampler=sampler, steps=10)
 
     sample10("ddim")()  # warm-up
-    net, x = model.ema.module.eval(), torch.randn(batch_size, window, dim)
-    t = torch.full((batch_size,), 50)
+    # The network as DDIM-10 calls it (a distilled student's with its jumps), at one of its steps.
+    jumps = ddim_jumps(model.diffusion.num_timesteps, 10) if model.takes_jumps("ddim", 10, 0.0) else None
+    net, x = model.model_fn(style, content, jumps=jumps), torch.randn(batch_size, window, dim)
+    t = torch.full((batch_size,), respace(model.diffusion.num_timesteps, 10)[5])
 
     def ten_forwards():
         with torch.no_grad():  # as generate runs the network
             for _ in range(10):
-                net(x, t, style, content)
+                net(x, t)
 
     batch_s, dpm_s, ten_s = _interleaved_medians([sample10("ddim"), sample10("dpmpp"), ten_forwards], repeats)
     forward_s = ten_s / 10

@@ -195,6 +195,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--minutes", type=float, default=15.0, help="training time (default 15)")
     p.add_argument("--iterations", type=int, default=None, help="stop after this many batches")
     p.add_argument("--lr", type=float, default=3e-5, help="Adam learning rate (default 3e-5)")
+    p.add_argument(
+        "--preserve", type=float, default=0.25,
+        help="share of each batch held to the teacher at the steps DDIM skips, so DDPM still samples as "
+        "the teacher did (default 0.25)",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 

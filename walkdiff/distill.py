@@ -12,9 +12,16 @@ so the estimate the student must give is x0* = (x_s - rho x_t) / (sqrt(abar_s) -
 which it learns in its own parameterisation (x0, eps or v). The last step (to clean data) keeps the
 teacher's estimate. The x_t are real training windows noised to t, the states sampling passes through.
 
-The student is saved as a checkpoint of the same model, so every command takes it, with a `distilled`
-record. It is made for `--sampler ddim --steps K`; other samplers run on it but it was not trained for
-them.
+One network serves both samplers: the student also takes the jump, how many trained steps a DDIM step
+spans (MotionDenoiser's jump embedding, zero at the start), and gets it only when sampling with the DDIM
+step count it was distilled for. A share of every batch (`preserve`) is drawn at any trained step with no
+jump and the teacher's own output as target, which keeps the plain denoiser that DDPM, DPM-Solver++,
+other DDIM step counts, transfer and --fix-feet use close to the teacher's. Without the jump and this
+share the student's DDPM drifted (FMD 59 against the teacher's 68, README): distillation then moved the
+same estimates DDPM relies on.
+
+The student is saved as a checkpoint of the same model (with `distilled_steps` set and a `distilled`
+record), so every command takes it.
 """
 
 from __future__ import annotations
@@ -82,6 +89,45 @@ def ddim_targets(
     return targets
 
 
+def student_targets(
+    teacher,
+    diffusion: GaussianDiffusion,
+    batch: dict,
+    timesteps: list[int],
+    paths: list[SamplerSteps],
+    preserve: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(x_t, t, jump, target) of one training batch.
+
+    Most rows: the window noised to a random kept step t_k, the jump t_k - t_k+1 of DDIM's step from
+    there, and the output that step needs (ddim_targets, in the network's parameterisation). A `preserve`
+    share of the rows: a random trained step, no jump (0) and the teacher's own output, which keeps the
+    plain denoiser, the one DDPM and the other samplers use, the teacher's. teacher(x, t, style,
+    content) is the teacher network."""
+    x0 = batch["features"]
+    step = torch.randint(0, len(timesteps), (x0.shape[0],))
+    t = torch.tensor(timesteps)[step]
+    jump = t - torch.tensor(timesteps[1:] + [-1])[step]
+    held = torch.rand(x0.shape[0]) < preserve
+    t[held] = torch.randint(0, diffusion.num_timesteps, (int(held.sum()),))
+    jump[held] = 0
+    x_t = diffusion.q_sample(x0, t, torch.randn_like(x0))
+    style, content = batch["style"], batch["content"]
+    target = torch.empty_like(x0)
+    if held.any():
+        target[held] = teacher(x_t[held], t[held], style[held], content[held])
+    rows = ~held
+    if rows.any():
+        s, c = style[rows], content[rows]
+        x0_target = ddim_targets(
+            lambda x, tt, r: teacher(x, tt, s[r], c[r]), diffusion, x_t[rows], step[rows], timesteps, paths
+        )
+        abar = extract(diffusion.alphas_cumprod, t[rows], x0_target)
+        eps_target = (x_t[rows] - abar.sqrt() * x0_target) / (1 - abar).sqrt()
+        target[rows] = diffusion.training_target(x0_target, eps_target, t[rows])
+    return x_t, t, jump, target
+
+
 def distill(
     ckpt: str,
     out: str,
@@ -91,9 +137,11 @@ def distill(
     lr: float = 3e-5,
     seed: int = 0,
     overwrite: bool = False,
+    preserve: float = 0.25,
 ) -> dict:
     """Train a DDIM-`steps` student of a StyledMotionDiffusion checkpoint for `minutes` (or `iterations`
-    batches, whichever ends first) and save it to `out`. Returns the run's record."""
+    batches, whichever ends first) and save it to `out`. `preserve`: the share of each batch held to the
+    teacher at the steps DDIM-`steps` skips. Returns the run's record."""
     from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.evaluation import data_settings
     from walkdiff.generation import load_generator
@@ -103,7 +151,11 @@ def distill(
         raise WalkdiffError("would overwrite an existing checkpoint; pass --overwrite", path=out_path)
     if minutes <= 0 or (iterations is not None and iterations < 1):
         raise WalkdiffError(f"--minutes must be > 0 and --iterations >= 1, got {minutes} and {iterations}")
+    if not 0 <= preserve < 1:
+        raise WalkdiffError(f"--preserve must be in [0, 1), got {preserve}")
     model = load_generator(ckpt)
+    if model.hparams.get("distilled_steps", 0):
+        raise WalkdiffError("already a distilled student; distil from the trained model", path=ckpt)
     diffusion = model.diffusion
     timesteps = respace(diffusion.num_timesteps, steps)
     paths = teacher_paths(diffusion, timesteps)
@@ -114,28 +166,19 @@ def distill(
     torch.manual_seed(seed)
     teacher = model.ema.module.eval().requires_grad_(False)
     # Dropout off: the student learns the teacher's deterministic map.
-    student = copy.deepcopy(teacher).eval().requires_grad_(True)
+    student = copy.deepcopy(teacher)
+    student.add_jump_conditioning()
+    student.eval().requires_grad_(True)
     optimizer = torch.optim.Adam(student.parameters(), lr=lr)
-
-    def teacher_on(batch: dict):
-        return lambda x, t, rows: teacher(x, t, batch["style"][rows], batch["content"][rows])
 
     start, done, losses = time.perf_counter(), 0, []
     limit = f"{minutes:g} min" + (f" or {iterations} batches" if iterations else "")
     print(f"distilling {ckpt} for DDIM-{steps}: {limit}", flush=True)
     while True:
         for batch in datamodule.train_dataloader():
-            x0 = batch["features"]
-            step = torch.randint(0, steps, (x0.shape[0],))
-            t = torch.tensor(timesteps)[step]
-            noise = torch.randn_like(x0)
-            x_t = diffusion.q_sample(x0, t, noise)
             with torch.no_grad():
-                x0_target = ddim_targets(teacher_on(batch), diffusion, x_t, step, timesteps, paths)
-                abar = extract(diffusion.alphas_cumprod, t, x0)
-                eps_target = (x_t - abar.sqrt() * x0_target) / (1 - abar).sqrt()
-                target = diffusion.training_target(x0_target, eps_target, t)
-            loss = (student(x_t, t, batch["style"], batch["content"]) - target).pow(2).mean()
+                x_t, t, jump, target = student_targets(teacher, diffusion, batch, timesteps, paths, preserve)
+            loss = (student(x_t, t, batch["style"], batch["content"], jump) - target).pow(2).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(student.parameters(), 1.0)
@@ -147,20 +190,22 @@ def distill(
                 recent = sum(losses[-25:]) / len(losses[-25:])
                 print(f"  batch {done}, {elapsed / 60:.1f} min, loss {recent:.3g}", flush=True)
             if elapsed >= minutes * 60 or (iterations is not None and done >= iterations):
-                return _save(checkpoint, student, out_path, ckpt, steps, done, elapsed, losses)
+                return _save(checkpoint, student, out_path, ckpt, steps, preserve, done, elapsed, losses)
 
 
-def _save(checkpoint, student, out_path, teacher_ckpt, steps, batches, elapsed, losses) -> dict:
+def _save(checkpoint, student, out_path, teacher_ckpt, steps, preserve, batches, elapsed, losses) -> dict:
     weights = student.state_dict()
     for name, value in weights.items():  # both copies, so sampling and any further training agree
         checkpoint["state_dict"][f"ema.module.{name}"] = value
         checkpoint["state_dict"][f"denoiser.{name}"] = value.clone()
     # The teacher's optimizer state does not belong to these weights.
     checkpoint["optimizer_states"], checkpoint["lr_schedulers"] = [], []
+    checkpoint["hyper_parameters"]["distilled_steps"] = steps  # builds the jump embedding on loading
     record = {
         "teacher": str(teacher_ckpt),
         "sampler": "ddim",
         "steps": steps,
+        "preserve": preserve,
         "batches": batches,
         "minutes": round(elapsed / 60, 2),
         "final_loss": round(sum(losses[-25:]) / len(losses[-25:]), 6),

@@ -49,6 +49,11 @@ class MotionDenoiser(nn.Module):
 
     The conditioning (step + content + style) is both a prefix token that every frame attends to
     and a bias added to every frame, which makes the style signal hard to ignore.
+
+    A distilled student (walkdiff/distill.py) also takes `jump`, how many trained steps the sampler's
+    step spans (B,): a jump above 1 adds its embedding to the conditioning, so one network gives both
+    the one-step estimate DDPM uses and the estimate a long DDIM step needs. 0 or 1 (or None) is the
+    plain denoiser.
     """
 
     def __init__(
@@ -61,6 +66,7 @@ class MotionDenoiser(nn.Module):
         heads: int = 4,
         ff_mult: int = 4,
         dropout: float = 0.1,
+        jump_conditioning: bool = False,
     ):
         super().__init__()
         self.d_model = d_model
@@ -74,15 +80,37 @@ class MotionDenoiser(nn.Module):
         self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(d_model)
         self.output = nn.Linear(d_model, feature_dim)
+        self.jump_mlp = None
+        if jump_conditioning:
+            self.add_jump_conditioning()
 
-    def condition(self, t: torch.Tensor, style: torch.Tensor, content: torch.Tensor) -> torch.Tensor:
-        return self.step_mlp(sinusoidal(t, self.d_model)) + self.style(style) + self.content(content)
+    def add_jump_conditioning(self) -> None:
+        """The jump embedding, starting at zero so the network still computes what it did."""
+        d = self.d_model
+        self.jump_mlp = nn.Sequential(nn.Linear(d, d), nn.SiLU(), nn.Linear(d, d))
+        nn.init.zeros_(self.jump_mlp[2].weight)
+        nn.init.zeros_(self.jump_mlp[2].bias)
+
+    def condition(
+        self, t: torch.Tensor, style: torch.Tensor, content: torch.Tensor, jump: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        cond = self.step_mlp(sinusoidal(t, self.d_model)) + self.style(style) + self.content(content)
+        if jump is not None:
+            if self.jump_mlp is None:
+                raise ValueError("this denoiser was not distilled: it takes no jump")
+            cond = cond + self.jump_mlp(sinusoidal(jump, self.d_model)) * (jump > 1)[:, None]
+        return cond
 
     def forward(
-        self, x_t: torch.Tensor, t: torch.Tensor, style: torch.Tensor, content: torch.Tensor
+        self,
+        x_t: torch.Tensor,
+        t: torch.Tensor,
+        style: torch.Tensor,
+        content: torch.Tensor,
+        jump: torch.Tensor | None = None,
     ) -> torch.Tensor:
         frames = x_t.shape[1]
-        cond = self.condition(t, style, content)[:, None]
+        cond = self.condition(t, style, content, jump)[:, None]
         pos = sinusoidal(torch.arange(frames, device=x_t.device), self.d_model)
         h = self.input(x_t) + pos + cond
         h = self.encoder(torch.cat([cond, h], dim=1))[:, 1:]

@@ -47,6 +47,7 @@ from walkdiff.diffusion import (
     dpm_solver_sample,
     guided,
     guided_batched,
+    respace,
 )
 from walkdiff.errors import WalkdiffError
 from walkdiff.footfix import ground, planted_heights
@@ -60,6 +61,16 @@ log = logging.getLogger(__name__)
 
 class TrainingDiverged(RuntimeError):
     """A loss term became NaN or infinite; the message names the batch and the term."""
+
+
+def ddim_jumps(num_timesteps: int, steps: int, device=None) -> torch.Tensor:
+    """(T,) long: at each trained step DDIM over `steps` visits, how many trained steps its step spans
+    (the last, to clean data, spans one); 0 elsewhere."""
+    timesteps = respace(num_timesteps, steps)
+    jumps = torch.zeros(num_timesteps, dtype=torch.long, device=device)
+    for t, s in zip(timesteps, timesteps[1:] + [-1], strict=True):
+        jumps[t] = t - s
+    return jumps
 
 
 class StyledMotionDiffusion(MotionModule):
@@ -90,6 +101,7 @@ class StyledMotionDiffusion(MotionModule):
         lr_warmup_batches: int = 100,
         grad_clip: float = 1.0,
         ema_decay: float = 0.999,
+        distilled_steps: int = 0,  # set by `walkdiff distill`: DDIM over this many steps takes jumps
     ):
         super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"])
@@ -99,8 +111,9 @@ class StyledMotionDiffusion(MotionModule):
         self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
         self.denoiser = MotionDenoiser(
-            spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout
-        )
+            spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout,
+            jump_conditioning=distilled_steps > 0,
+        )  # fmt: skip
         self.discriminator = (
             MotionDiscriminator(
                 spec["feature_dim"], num_styles, num_contents, conditional=conditional_discriminator
@@ -364,7 +377,10 @@ class StyledMotionDiffusion(MotionModule):
         """
         frames = frames or self.spec["window"]
         shape = (style.shape[0], frames, self.spec["feature_dim"])
-        model_fn = self.model_fn(style, content, guidance)
+        jumps = None
+        if self.takes_jumps(sampler, steps, eta):
+            jumps = ddim_jumps(self.diffusion.num_timesteps, steps or 10, self.device)
+        model_fn = self.model_fn(style, content, guidance, jumps)
         common = dict(generator=generator, progress=progress, inpaint=inpaint)
         if sampler == "ddpm":
             return ddpm_sample(model_fn, self.diffusion, shape, **common)
@@ -374,13 +390,30 @@ class StyledMotionDiffusion(MotionModule):
             return dpm_solver_sample(model_fn, self.diffusion, shape, steps or 10, **common)
         raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm, ddim or dpmpp")
 
-    def model_fn(self, style: torch.Tensor, content: torch.Tensor, guidance: float = 1.0):
-        """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance."""
-        net = self.ema.module.eval()
+    def takes_jumps(self, sampler: str, steps: int | None, eta: float) -> bool:
+        """Whether a distilled student samples with its jumps: where it was distilled, deterministic DDIM
+        over its step count (walkdiff/distill.py). Everything else runs the plain denoiser."""
+        distilled = self.hparams.get("distilled_steps", 0)
+        return bool(distilled) and sampler == "ddim" and eta == 0 and (steps or 10) == distilled
+
+    def model_fn(
+        self,
+        style: torch.Tensor,
+        content: torch.Tensor,
+        guidance: float = 1.0,
+        jumps: torch.Tensor | None = None,
+    ):
+        """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance.
+        `jumps` (T,): the jump each trained step takes (ddim_jumps), for a distilled student's DDIM."""
+        ema = self.ema.module.eval()
+
+        def net(x, t, s, c):
+            return ema(x, t, s, c, None if jumps is None else jumps[t])
+
         if guidance == 1.0:
             return lambda x, t: net(x, t, style, content)
-        null_style = torch.full((style.shape[0],), net.style.null_id, device=self.device)
-        null_content = torch.full_like(content, net.content.null_id)
+        null_style = torch.full((style.shape[0],), ema.style.null_id, device=self.device)
+        null_content = torch.full_like(content, ema.content.null_id)
         if style.is_floating_point():
             # Mixing weights and the null id (the unconditional pass) cannot share one batch tensor.
             return guided(
