@@ -129,10 +129,17 @@ def test_fix_feet_features_changes_only_rotations(xia_dir):
     layout = FeatureLayout(motion.skeleton.num_joints)
     raw = encode(motion, CONTACTS)[:48].reshape(2, 24, -1)  # two windows, as the evaluator sees them
     raw[..., layout.root_vel] *= 1.4  # the root outruns its feet: they slide backwards
+    # A sampled 6D rotation is not exactly orthonormal: scaled, the arm's pose is the same.
+    arm = layout.rotations.start + 6 * motion.skeleton.index("LeftArm")
+    raw[..., arm : arm + 6] *= 1.02
     fixed = fix_feet_features(raw, motion.skeleton, 30.0, CONTACTS)
     keep = np.ones(layout.dim, bool)
     keep[layout.rotations] = False
     np.testing.assert_array_equal(fixed[..., keep], raw[..., keep])
+    # Joints the IK does not move keep their channels as they were, not re-encoded; the legs change.
+    np.testing.assert_array_equal(fixed[..., arm : arm + 6], raw[..., arm : arm + 6])
+    knee = layout.rotations.start + 6 * motion.skeleton.index("LeftLeg")
+    assert np.abs(fixed[..., knee : knee + 6] - raw[..., knee : knee + 6]).max() > 1e-3
     offsets = torch.from_numpy(motion.skeleton.offsets)
     positions = [
         features_to_positions(torch.from_numpy(x).double(), offsets, motion.skeleton.parents)

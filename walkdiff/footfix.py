@@ -149,14 +149,20 @@ def fix_feet(motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int
 
 
 def fix_feet_features(raw: np.ndarray, skeleton: Skeleton, fps: float, spec: ContactSpec) -> np.ndarray:
-    """`fix_feet` on feature windows (..., F, D) in data units: only the rotation channels change."""
+    """`fix_feet` on feature windows (..., F, D) in data units: only the rotation channels of the joints
+    and frames the IK moved change. The others keep their channels as sampled: encoding them again would
+    orthonormalise their 6D rotations, the same pose but other numbers (the evaluator reads the numbers)."""
     raw = np.asarray(raw, dtype=np.float32)
     layout = FeatureLayout(skeleton.num_joints)
     out = raw.copy()
     for index in np.ndindex(raw.shape[:-2]):
         motion = decode(raw[index], skeleton, 1.0 / fps)
         fixed = fix_feet(motion, raw[index][:, layout.contacts], spec)
-        out[index][:, layout.rotations] = encode(fixed, spec)[:, layout.rotations]
+        moved = np.abs(fixed.rotations - motion.rotations).max(axis=(-2, -1)) > 0  # (F, J)
+        sixd = encode(fixed, spec)[:, layout.rotations].reshape(len(moved), -1, 6)
+        window = out[index][:, layout.rotations].reshape(sixd.shape)
+        window[moved] = sixd[moved]
+        out[index][:, layout.rotations] = window.reshape(len(moved), -1)
     return out
 
 
