@@ -322,6 +322,9 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     assert json.loads((out / "manifest.json").read_text())["settings"]["distilled_jumps"] is True
     assert main(args) == 1
     assert "would overwrite" in capsys.readouterr().err
+    again = ["distill", "--ckpt", str(student_path), "--out", str(tmp_path / "2.ckpt"), "--iterations", "1"]
+    assert main(again) == 1
+    assert "already a distilled student" in capsys.readouterr().err
 
 
 def test_a_checkpoint_without_planted_heights_loads_but_refuses_grounding(ckpt, tmp_path):

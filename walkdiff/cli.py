@@ -197,8 +197,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=float, default=3e-5, help="Adam learning rate (default 3e-5)")
     p.add_argument(
         "--preserve", type=float, default=0.25,
-        help="share of each batch held to the teacher at the steps DDIM skips, so DDPM still samples as "
-        "the teacher did (default 0.25)",
+        help="share of each batch held, without a jump, to the teacher's own output, so DDPM and the other "
+        "samplers still sample as the teacher did (default 0.25)",
     )  # fmt: skip
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")

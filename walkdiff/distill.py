@@ -140,8 +140,8 @@ def distill(
     preserve: float = 0.25,
 ) -> dict:
     """Train a DDIM-`steps` student of a StyledMotionDiffusion checkpoint for `minutes` (or `iterations`
-    batches, whichever ends first) and save it to `out`. `preserve`: the share of each batch held to the
-    teacher at the steps DDIM-`steps` skips. Returns the run's record."""
+    batches, whichever ends first) and save it to `out`. `preserve`: the share of each batch held, without a
+    jump, to the teacher's own output. Returns the run's record."""
     from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.evaluation import data_settings
     from walkdiff.generation import load_generator
