@@ -88,8 +88,8 @@ def test_the_preserved_share_is_held_to_the_teacher_without_a_jump():
 
 
 def test_the_jump_embedding_starts_as_the_plain_denoiser_and_is_used_only_above_one():
+    from walkdiff.diffusion import step_jumps
     from walkdiff.models.denoiser import MotionDenoiser
-    from walkdiff.models.styled_ddpm import ddim_jumps
 
     torch.manual_seed(0)
     net = MotionDenoiser(6, 3, 2, d_model=16, layers=1, heads=2, dropout=0.0).eval()
@@ -106,6 +106,6 @@ def test_the_jump_embedding_starts_as_the_plain_denoiser_and_is_used_only_above_
     assert not torch.allclose(jumped[:2], plain[:2], atol=1e-3)  # jumps of 11 move the output
     torch.testing.assert_close(jumped[2:], plain[2:])  # 1 and 0: the plain denoiser
 
-    jumps = ddim_jumps(100, 10)
+    jumps = step_jumps(100, respace(100, 10))
     assert jumps[99] == jumps[88] == jumps[11] == 11 and jumps[0] == 1
     assert int((jumps > 0).sum()) == 10 and jumps[50] == 0

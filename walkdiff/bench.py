@@ -449,7 +449,6 @@ def bench_sample(
     """
     from walkdiff.diffusion import respace
     from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
-    from walkdiff.models.styled_ddpm import ddim_jumps
 
     model = load_generator(ckpt)
     bench = _QualityBench(model, ckpt, evaluator, num, seed, seeds, ground)
@@ -483,8 +482,8 @@ def bench_sample(
 
     sample10("ddim")()  # warm-up
     # The network as DDIM-10 calls it (a distilled student's with its jumps), at one of its steps.
-    jumps = ddim_jumps(model.diffusion.num_timesteps, 10) if model.takes_jumps("ddim", 10, 0.0) else None
-    net, x = model.model_fn(style, content, jumps=jumps), torch.randn(batch_size, window, dim)
+    net = model.model_fn(style, content, jumps=model.jumps("ddim", 10, 0.0))
+    x = torch.randn(batch_size, window, dim)
     t = torch.full((batch_size,), respace(model.diffusion.num_timesteps, 10)[5])
 
     def ten_forwards():

@@ -41,6 +41,7 @@ from walkdiff.diffusion import (
     respace,
     run_steps,
     step_coefficients,
+    step_jumps,
 )
 from walkdiff.diffusion.samplers import ModelFn
 from walkdiff.errors import WalkdiffError
@@ -107,7 +108,7 @@ def student_targets(
     x0 = batch["features"]
     step = torch.randint(0, len(timesteps), (x0.shape[0],))
     t = torch.tensor(timesteps)[step]
-    jump = t - torch.tensor(timesteps[1:] + [-1])[step]
+    jump = step_jumps(diffusion.num_timesteps, timesteps)[t]
     held = torch.rand(x0.shape[0]) < preserve
     t[held] = torch.randint(0, diffusion.num_timesteps, (int(held.sum()),))
     jump[held] = 0

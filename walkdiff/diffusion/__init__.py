@@ -13,6 +13,7 @@ from walkdiff.diffusion.samplers import (
     respace,
     run_steps,
     step_coefficients,
+    step_jumps,
 )
 from walkdiff.diffusion.schedules import SCHEDULES, beta_schedule, cosine_alphas_cumprod
 
@@ -33,4 +34,5 @@ __all__ = [
     "respace",
     "run_steps",
     "step_coefficients",
+    "step_jumps",
 ]

@@ -63,6 +63,15 @@ def respace(num_timesteps: int, steps: int) -> list[int]:
     return torch.linspace(num_timesteps - 1, 0, steps, dtype=torch.float64).round().long().tolist()
 
 
+def step_jumps(num_timesteps: int, timesteps: Sequence[int], device=None) -> torch.Tensor:
+    """(T,) long: at each of `timesteps` (descending, ending at 0), how many trained steps the sampler's
+    step from there spans (the last, to clean data, spans one); 0 at the steps it skips."""
+    jumps = torch.zeros(num_timesteps, dtype=torch.long, device=device)
+    for t, s in zip(timesteps, [*timesteps[1:], -1], strict=True):
+        jumps[t] = t - s
+    return jumps
+
+
 def log_snr_timesteps(diffusion: GaussianDiffusion, steps: int, first: int | None = None) -> list[int]:
     """`steps` trained timesteps from `first` (default T - 1) down to 0, evenly spaced in log-SNR lambda:
     the spacing DPM-Solver is derived for. Rounded to the trained grid and kept distinct, so where the

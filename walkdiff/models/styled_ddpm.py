@@ -48,6 +48,7 @@ from walkdiff.diffusion import (
     guided,
     guided_batched,
     respace,
+    step_jumps,
 )
 from walkdiff.errors import WalkdiffError
 from walkdiff.footfix import ground, planted_heights
@@ -61,16 +62,6 @@ log = logging.getLogger(__name__)
 
 class TrainingDiverged(RuntimeError):
     """A loss term became NaN or infinite; the message names the batch and the term."""
-
-
-def ddim_jumps(num_timesteps: int, steps: int, device=None) -> torch.Tensor:
-    """(T,) long: at each trained step DDIM over `steps` visits, how many trained steps its step spans
-    (the last, to clean data, spans one); 0 elsewhere."""
-    timesteps = respace(num_timesteps, steps)
-    jumps = torch.zeros(num_timesteps, dtype=torch.long, device=device)
-    for t, s in zip(timesteps, timesteps[1:] + [-1], strict=True):
-        jumps[t] = t - s
-    return jumps
 
 
 class StyledMotionDiffusion(MotionModule):
@@ -377,10 +368,7 @@ class StyledMotionDiffusion(MotionModule):
         """
         frames = frames or self.spec["window"]
         shape = (style.shape[0], frames, self.spec["feature_dim"])
-        jumps = None
-        if self.takes_jumps(sampler, steps, eta):
-            jumps = ddim_jumps(self.diffusion.num_timesteps, steps or 10, self.device)
-        model_fn = self.model_fn(style, content, guidance, jumps)
+        model_fn = self.model_fn(style, content, guidance, self.jumps(sampler, steps, eta))
         common = dict(generator=generator, progress=progress, inpaint=inpaint)
         if sampler == "ddpm":
             return ddpm_sample(model_fn, self.diffusion, shape, **common)
@@ -390,11 +378,14 @@ class StyledMotionDiffusion(MotionModule):
             return dpm_solver_sample(model_fn, self.diffusion, shape, steps or 10, **common)
         raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm, ddim or dpmpp")
 
-    def takes_jumps(self, sampler: str, steps: int | None, eta: float) -> bool:
-        """Whether a distilled student samples with its jumps: where it was distilled, deterministic DDIM
-        over its step count (walkdiff/distill.py). Everything else runs the plain denoiser."""
+    def jumps(self, sampler: str, steps: int | None, eta: float) -> torch.Tensor | None:
+        """The jumps (T,) a distilled student samples with where it was distilled, deterministic DDIM
+        over its step count (walkdiff/distill.py); None everywhere else: the plain denoiser."""
         distilled = self.hparams.get("distilled_steps", 0)
-        return bool(distilled) and sampler == "ddim" and eta == 0 and (steps or 10) == distilled
+        if not (distilled and sampler == "ddim" and eta == 0 and (steps or 10) == distilled):
+            return None
+        total = self.diffusion.num_timesteps
+        return step_jumps(total, respace(total, distilled), self.device)
 
     def model_fn(
         self,
@@ -404,7 +395,7 @@ class StyledMotionDiffusion(MotionModule):
         jumps: torch.Tensor | None = None,
     ):
         """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance.
-        `jumps` (T,): the jump each trained step takes (ddim_jumps), for a distilled student's DDIM."""
+        `jumps` (T,): the jump each trained step takes (`jumps`), for a distilled student's DDIM."""
         ema = self.ema.module.eval()
 
         def net(x, t, s, c):
