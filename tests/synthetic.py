@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from walkdiff.motion.bvh import write_bvh
+from walkdiff.motion.profile import ContactSpec
 from walkdiff.motion.rotations import euler_to_matrix
 from walkdiff.motion.skeleton import Motion, Skeleton
 
@@ -75,3 +76,15 @@ def xia_like_folder(root: Path, styles=("angry", "old"), walk_clips: int = 6, fr
         seed += 1
         write_bvh(folder / f"{style}_13_000.bvh", walking(frames, seed=seed, turn=0.0))
     return folder
+
+
+def xia_profile(motion: Motion):
+    """The skeleton profile walkdiff finds for a Xia clip (or the synthetic CMU-like one above)."""
+    from walkdiff.data.xia import PROFILE
+    from walkdiff.motion.profile import SkeletonProfile
+
+    return SkeletonProfile.detect(motion, PROFILE)
+
+
+# Xia's contact joints with the thresholds its profile gives (0.2 and 0.02 of its 24.1-unit height).
+XIA_CONTACTS = ContactSpec("LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase", 4.83, 0.483)

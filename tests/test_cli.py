@@ -8,7 +8,6 @@ import synthetic
 import yaml
 
 from walkdiff.cli import main
-from walkdiff.data.xia import CONTACTS
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.mirror import mirror
@@ -22,12 +21,20 @@ def plain_argv(monkeypatch):
     monkeypatch.setattr("sys.argv", ["walkdiff"])
 
 
-def test_inspect_reports_a_real_clip(xia_dir, capsys):
-    assert main(["inspect", str(xia_dir / "neutral_01_000.bvh")]) == 0
+def test_inspect_reports_a_real_clip(xia_dir, tmp_path, capsys):
+    clip = str(xia_dir / "neutral_01_000.bvh")
+    assert main(["inspect", clip]) == 0
     out = capsys.readouterr().out
     assert "joints:    31" in out
     assert "120.00 fps" in out
-    assert "left toe" in out and "suspicious: none" in out
+    assert "root:      Hips" in out and "left LeftFoot / LeftToeBase" in out and "up +y" in out
+    # CMU units are no human height in m, cm, mm or inches: said, and a 1.7 m body assumed.
+    assert "1.7 m body assumed" in out.split("suspicious:")[1]
+    profile = tmp_path / "xia.yaml"
+    profile.write_text("units: 0.0564444\n")
+    assert main(["inspect", clip, "--profile", str(profile)]) == 0
+    out = capsys.readouterr().out
+    assert "left toe" in out and "suspicious: none" in out and "1.36 m" in out
 
 
 def test_inspect_flags_a_glitch(tmp_path, capsys):
@@ -67,9 +74,11 @@ def test_convert_resamples_and_mirrors(xia_dir, tmp_path):
     assert converted.fps == pytest.approx(30.0)
     assert abs(converted.duration - original.duration) <= 1 / 30
     # The command is the library's resample -> mirror -> encode -> decode, placed at the clip's start.
-    expected = mirror(resample(original, 30))
-    position, heading = start_pose(expected)
-    expected = decode(encode(expected, CONTACTS), expected.skeleton, expected.frame_time, position, heading)
+    profile = synthetic.xia_profile(original)
+    expected = mirror(resample(profile.to_canonical(original), 30), profile.body_pairs)
+    position, heading = start_pose(expected, profile)
+    expected = decode(encode(expected, profile), expected.skeleton, expected.frame_time, position, heading)
+    expected = profile.to_file(expected)
     error = np.abs(motion_world_positions(converted) - motion_world_positions(expected)).max()
     assert error < 1e-3
 

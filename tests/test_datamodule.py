@@ -82,7 +82,7 @@ def test_normaliser_uses_training_clips_only(xia_module):
     train = np.concatenate([f for _, _, f in xia_module.split_features("train", mirrored=True)])
     test = np.concatenate([f for _, _, f in xia_module.split_features("test")])
     mean = xia_module.normalizer.mean.numpy()
-    np.testing.assert_allclose(mean, train.mean(0), atol=1e-4)
+    np.testing.assert_allclose(mean, train.mean(0, dtype=np.float64), atol=1e-4)
     assert np.abs(mean - np.concatenate([train, test]).mean(0)).max() > 1e-4
 
 

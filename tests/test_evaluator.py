@@ -9,10 +9,11 @@ import lightning as L
 import pytest
 import torch
 
-from walkdiff.data.datamodule import DataSpec, MotionDataModule
+from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.motion.representation import FeatureLayout
+from walkdiff.spec import DataSpec
 
 SPEC = DataSpec(
     dataset="xia",

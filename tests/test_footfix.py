@@ -6,7 +6,6 @@ import numpy as np
 import synthetic
 import torch
 
-from walkdiff.data.xia import CONTACTS
 from walkdiff.footfix import ankle_offsets, contact_runs, fix_feet, fix_feet_features, two_bone_ik
 from walkdiff.metrics.physics import FootSkating
 from walkdiff.motion.bvh import read_bvh
@@ -14,6 +13,8 @@ from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import FeatureLayout, encode, features_to_positions
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
+
+CONTACTS = synthetic.XIA_CONTACTS
 
 
 def test_contact_runs_and_offsets_fade_out():
@@ -99,7 +100,7 @@ def test_fix_feet_halves_skating_on_real_clips_with_artificial_slide(xia_dir):
     rows = []
     for k, name in enumerate(names):
         motion = resample(read_bvh(xia_dir / f"{name}.bvh"), 30.0)
-        contacts = encode(motion, CONTACTS)[:, -4:]
+        contacts = encode(motion, synthetic.xia_profile(motion))[:, -4:]
         time = np.arange(motion.num_frames) / 30.0
         slid = Motion(motion.skeleton, motion.rotations, motion.positions.copy(), motion.frame_time)
         slid.positions[:, 0, 0] += 1.0 * np.sin(
@@ -127,12 +128,13 @@ def test_fix_feet_halves_skating_on_real_clips_with_artificial_slide(xia_dir):
 def test_fix_feet_features_changes_only_rotations(xia_dir):
     motion = resample(read_bvh(xia_dir / "proud_01_000.bvh"), 30.0)
     layout = FeatureLayout(motion.skeleton.num_joints)
-    raw = encode(motion, CONTACTS)[:48].reshape(2, 24, -1)  # two windows, as the evaluator sees them
+    profile = synthetic.xia_profile(motion)
+    raw = encode(motion, profile)[:48].reshape(2, 24, -1)  # two windows, as the evaluator sees them
     raw[..., layout.root_vel] *= 1.4  # the root outruns its feet: they slide backwards
     # A sampled 6D rotation is not exactly orthonormal: scaled, the arm's pose is the same.
     arm = layout.rotations.start + 6 * motion.skeleton.index("LeftArm")
     raw[..., arm : arm + 6] *= 1.02
-    fixed = fix_feet_features(raw, motion.skeleton, 30.0, CONTACTS)
+    fixed = fix_feet_features(raw, profile, 30.0)
     keep = np.ones(layout.dim, bool)
     keep[layout.rotations] = False
     np.testing.assert_array_equal(fixed[..., keep], raw[..., keep])
@@ -156,7 +158,7 @@ def test_grounding_puts_planted_feet_back_on_the_training_floor(xia_dir):
     from walkdiff.footfix import ground, planted_heights
 
     clips = [c for c in list_clips(xia_dir) if c.content == 0][:8]
-    raws = [encode(resample(load(c), 30.0), CONTACTS) for c in clips]
+    raws = [encode(resample(load(c), 30.0), synthetic.xia_profile(load(c))) for c in clips]
     skeleton = load(clips[0]).skeleton
     heights = planted_heights(raws, skeleton, CONTACTS)
     assert np.all(np.isfinite(heights)) and np.all(np.abs(heights) < 2.0)

@@ -25,6 +25,7 @@ from walkdiff.models.action_evaluator import ActionEvaluator
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import decode, encode, start_pose
 from walkdiff.motion.smpl import BVH_ORDER, NAMES, SMPL_PARENTS
 
@@ -171,9 +172,10 @@ def test_feature_round_trip_and_bvh_export(root, tmp_path):
     for item in (0, 7, 22):
         motion = humanact12.load_clip(pkl_path(root), item)
         positions = motion_world_positions(motion)
-        features = encode(motion, humanact12.CONTACTS)
+        profile = SkeletonProfile.detect(motion, humanact12.PROFILE)
+        features = encode(motion, profile)
         assert features.shape == (motion.num_frames, 8 + 6 * 24)
-        position, heading = start_pose(motion)
+        position, heading = start_pose(motion, profile)
         decoded = decode(features, motion.skeleton, motion.frame_time, position, heading)
         worst_decode = max(worst_decode, np.abs(motion_world_positions(decoded) - positions).max())
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import roma
 import torch
+from synthetic import xia_profile
 
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import (
-    XIA_CONTACTS,
-    ContactSpec,
     FeatureLayout,
     Normalizer,
     decode,
@@ -26,7 +26,15 @@ from walkdiff.motion.representation import (
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 FPS = 30.0
-FEET = ContactSpec("LeftFoot", "LeftToe", "RightFoot", "RightToe", speed_threshold=5.0, height_threshold=0.5)
+# The toy skeleton's feet and Xia's contact thresholds, given rather than found (its rest pose is tiny).
+FEET = {
+    "left_heel": "LeftFoot", "left_toe": "LeftToe", "right_heel": "RightFoot", "right_toe": "RightToe",
+    "contact_speed": 5.0, "contact_height": 0.5, "up": "+y", "forward": "+z",
+}  # fmt: skip
+
+
+def _profile(motion: Motion) -> SkeletonProfile:
+    return SkeletonProfile.detect(motion, FEET)
 
 
 def _skeleton() -> Skeleton:
@@ -52,8 +60,8 @@ def _clip(root_positions: np.ndarray, root_rotations: np.ndarray) -> Motion:
     return Motion(skeleton, rotations, positions, 1.0 / FPS)
 
 
-def _round_trip_error(motion: Motion, features: np.ndarray) -> float:
-    position, heading = start_pose(motion)
+def _round_trip_error(motion: Motion, features: np.ndarray, profile: SkeletonProfile | None = None) -> float:
+    position, heading = start_pose(motion, profile or _profile(motion))
     decoded = decode(features, motion.skeleton, motion.frame_time, position, heading)
     return float(np.abs(motion_world_positions(decoded) - motion_world_positions(motion)).max())
 
@@ -77,7 +85,7 @@ def test_straight_walk():
     # A forward tilt (about X) must not change the heading.
     root_rot = _rot([0.0, heading, 0.0]) @ _rot([tilt, 0.0, 0.0])
     motion = _clip(path, np.repeat(root_rot[None], len(t), axis=0))
-    x = encode(motion, FEET)
+    x = encode(motion, _profile(motion))
     layout = FeatureLayout(5)
     assert x.dtype == np.float32 and x.shape == (40, layout.dim)
     np.testing.assert_allclose(x[:, layout.root_vel], [[0.0, speed / FPS]] * 40, atol=1e-6)
@@ -87,7 +95,7 @@ def test_straight_walk():
     np.testing.assert_allclose(root_6d, np.tile(_rot([tilt, 0, 0])[:, :2].T.reshape(6), (40, 1)), atol=1e-6)
     assert _round_trip_error(motion, x) < 1e-4
     # A single frame has no next frame: zero velocities, and it still decodes.
-    single = encode(motion.slice(0, 1), FEET)
+    single = encode(motion.slice(0, 1), _profile(motion))
     assert np.array_equal(single[:, :2], [[0.0, 0.0]]) and single[0, 3] == 0.0
     assert _round_trip_error(motion.slice(0, 1), single) < 1e-4
     # Without a start pose the walk starts at the origin facing +Z.
@@ -100,7 +108,7 @@ def test_turning_root_wraps_heading():
     heading = 0.5 + omega * np.arange(frames) / FPS
     path = radius * np.stack([-np.cos(heading), np.full(frames, 1.5), np.sin(heading)], axis=-1)
     motion = _clip(path, _rot(heading[:, None] * [0.0, 1.0, 0.0]))
-    x = encode(motion, FEET)
+    x = encode(motion, _profile(motion))
     step = omega / FPS
     np.testing.assert_allclose(x[:, 3], step, atol=1e-6)
     chord = [radius * (1 - math.cos(step)), radius * math.sin(step)]
@@ -113,8 +121,8 @@ def test_torch_decoding_matches_and_has_gradients():
     heading = 0.3 + 2.0 * t
     path = np.stack([4 * np.sin(t), 10 + 0.2 * np.cos(5 * t), 3 * t], axis=-1)
     motion = _clip(path, _rot(heading[:, None] * [0.0, 1.0, 0.0]))
-    position, start_heading = start_pose(motion)
-    x = torch.tensor(encode(motion, FEET), dtype=torch.float64).repeat(2, 1, 1).requires_grad_()
+    position, start_heading = start_pose(motion, _profile(motion))
+    x = torch.tensor(encode(motion, _profile(motion)), dtype=torch.float64).repeat(2, 1, 1).requires_grad_()
     offsets, parents = torch.from_numpy(motion.skeleton.offsets), motion.skeleton.parents
     world = features_to_positions(x, offsets, parents, position, start_heading)
     assert world.shape == (2, 30, 5, 3)
@@ -134,15 +142,16 @@ def test_contacts_speed_height_and_floor_offset():
     height = 10.0 + rise * np.maximum(0, np.arange(frames) - 19)
     path = np.stack([np.zeros(frames), height, np.zeros(frames)], axis=-1)
     still = np.repeat(np.eye(3)[None], frames, axis=0)
-    contacts = encode(_clip(path, still), FEET)[:, -4:]
-    lifted = (height - 10.0) >= FEET.height_threshold
+    contacts = encode(_clip(path, still), _profile(_clip(path, still)))[:, -4:]
+    lifted = (height - 10.0) >= FEET["contact_height"]
     assert np.array_equal(contacts, np.repeat(~lifted[:, None], 4, axis=1).astype(np.float32))
     assert 0 < lifted.sum() < frames - 20  # some slow frames are out of contact by height alone
     # Moving fast: out of contact even on the floor.
     fast = path + np.stack([np.arange(frames) * 1.0, np.zeros(frames), np.zeros(frames)], axis=-1)
-    assert not encode(_clip(fast, still), FEET)[:, -4:].any()
+    assert not encode(_clip(fast, still), _profile(_clip(fast, still)))[:, -4:].any()
     # A floor 100 units up gives the same labels.
-    raised = encode(_clip(path + [0.0, 100.0, 0.0], still), FEET)[:, -4:]
+    raised_clip = _clip(path + [0.0, 100.0, 0.0], still)
+    raised = encode(raised_clip, _profile(raised_clip))[:, -4:]
     assert np.array_equal(raised, contacts)
 
 
@@ -157,7 +166,7 @@ def test_features_do_not_depend_on_placement(xia_dir):
     )
     moved.rotations[:, 0] = turn @ motion.rotations[:, 0]
     moved.positions[:, 0] = motion.root_positions @ turn.T + [50.0, 0.0, -20.0]
-    x, y = encode(motion, XIA_CONTACTS), encode(moved, XIA_CONTACTS)
+    x, y = encode(motion, xia_profile(motion)), encode(moved, xia_profile(motion))
     np.testing.assert_allclose(x, y, atol=1e-5)
     assert 0 < x[:, -4:].mean() < 1  # feet do touch and leave the ground in a walk
 
@@ -179,10 +188,10 @@ def test_round_trip_every_xia_clip(xia_dir, one_thread):
     worst = 0.0
     for path in paths:
         motion = read_bvh(path)
-        x = encode(motion, XIA_CONTACTS)
+        x = encode(motion, xia_profile(motion))
         assert x.shape == (motion.num_frames, 194)
         assert set(np.unique(x[:, -4:])) <= {0.0, 1.0}
-        worst = max(worst, _round_trip_error(motion, x))
+        worst = max(worst, _round_trip_error(motion, x, xia_profile(motion)))
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     print(f"round trip of {len(paths)} Xia clips: worst {worst:.2e} units, {wall:.1f} s ({cpu:.1f} s CPU)")
     assert worst < 1e-3

@@ -22,7 +22,9 @@ from walkdiff.data.speech import (
     log_mel,
 )
 from walkdiff.errors import WalkdiffError
+from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.profile import SkeletonProfile
 
 RATE = 16_000
 
@@ -51,9 +53,14 @@ def write_take(folder: Path, stem: str, seconds: float, audio_seconds: float | N
     return write_wav(folder / f"{stem}.wav", seconds if audio_seconds is None else audio_seconds, seed)
 
 
+def _load_take(folder, stem, **options):
+    bvh = folder / f"{stem}.bvh"
+    return load_take(bvh, folder / f"{stem}.wav", SkeletonProfile.detect(read_bvh(bvh)), **options)
+
+
 def test_take_is_aligned_frame_for_frame(tmp_path):
     write_take(tmp_path, "a", 6.0)
-    take = load_take(tmp_path / "a.bvh", tmp_path / "a.wav", fps=20.0)
+    take = _load_take(tmp_path, "a", fps=20.0)
     assert take.motion.fps == pytest.approx(20.0)
     assert take.motion.num_frames == 121  # 0 .. 6 s at 20 fps
     assert take.audio.shape == (121, 27)
@@ -77,7 +84,7 @@ def test_mel_resamples_rates_that_do_not_divide_into_frames():
 def test_length_mismatch_names_both_files(tmp_path):
     write_take(tmp_path, "short", 6.0, audio_seconds=5.0)
     with pytest.raises(WalkdiffError) as error:
-        load_take(tmp_path / "short.bvh", tmp_path / "short.wav")
+        _load_take(tmp_path, "short")
     message = str(error.value)
     assert "short.bvh" in message and "short.wav" in message
     assert "121 frames" in message and "101" in message
@@ -85,7 +92,7 @@ def test_length_mismatch_names_both_files(tmp_path):
 
 def test_one_frame_of_mismatch_is_trimmed(tmp_path):
     write_take(tmp_path, "a", 6.0, audio_seconds=6.0 - 0.05)
-    take = load_take(tmp_path / "a.bvh", tmp_path / "a.wav")
+    take = _load_take(tmp_path, "a")
     assert take.motion.num_frames == len(take.audio) == 120
 
 

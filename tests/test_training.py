@@ -172,7 +172,7 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
     dm.setup("fit")
     model = StyledMotionDiffusion(dm.spec, **TINY, lambda_velocity=1.0, lambda_foot=1.0, lambda_position=1.0)
     model.normalizer.load_state_dict(dm.normalizer.state_dict())
-    model.skeleton = dm.skeleton
+    model.profile = dm.profile
     batch = next(iter(dm.train_dataloader()))
     # Standing still on planted feet: every frame the first pose, no root motion, all contacts on.
     raw = model.normalizer.denormalize(batch["features"])[:, :1].repeat(1, 24, 1)
@@ -187,14 +187,16 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
 
     exact = losses(batch["features"])
     assert exact["velocity"] == 0 and exact["foot"] == 0 and exact["position"] == 0
-    # Sliding 1 unit sideways every frame: planted feet move at 30 units/s, 6 contact thresholds.
+    # Sliding 1 unit sideways every frame: planted feet move at 30 units/s, 30 / threshold thresholds.
     slid_raw = raw.clone()
     slid_raw[..., 0] += 1.0
     slid = model.normalizer.normalize(slid_raw).requires_grad_(True)
     moved = losses(slid)
     abar = float(model.diffusion.alphas_cumprod[0])
-    assert moved["foot"].item() == pytest.approx(abar * 36.0, rel=1e-4)
-    assert moved["velocity"].item() == pytest.approx(abar * 36.0 / 3, rel=1e-4)  # every joint, x of (x, y, z)
+    thresholds = (30.0 / model.contact_spec.speed_threshold) ** 2
+    assert moved["foot"].item() == pytest.approx(abar * thresholds, rel=1e-4)
+    # Every joint moves, in x of (x, y, z).
+    assert moved["velocity"].item() == pytest.approx(abar * thresholds / 3, rel=1e-4)
     assert moved["position"].item() == pytest.approx(0, abs=1e-8)  # the pose itself did not change
     moved["foot"].backward()
     assert slid.grad[..., 0].abs().sum() > 0

@@ -14,7 +14,7 @@ import torch
 
 from walkdiff.cli import main
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.data.xia import CONTACTS, list_clips, load
+from walkdiff.data.xia import list_clips, load
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.path_walker import PathWalker, advance_root, local_offsets
 from walkdiff.motion.bvh import read_bvh
@@ -79,9 +79,11 @@ def test_bad_path_files_name_the_file_and_the_field(tmp_path, text, expected):
 def test_shipped_example_paths_read():
     folder = Path(__file__).parents[1] / "conf" / "paths"
     s_curve, speed = read_path(folder / "s_curve.json")
-    assert s_curve.length > 160 and speed is None
+    # In metres: Xia's 160-unit S and 40-unit circle (CMU units are 0.0564 m), 20 units/s.
+    assert s_curve.length > 9.0 and speed is None
     circle, speed = read_path(folder / "circle.json")
-    assert circle.length == pytest.approx(2 * math.pi * 40, rel=1e-3) and speed == 20.0
+    assert circle.length == pytest.approx(2 * math.pi * 40 * 0.0564444, rel=1e-3)
+    assert speed == pytest.approx(20 * 0.0564444, rel=1e-3)
 
 
 def test_local_offsets_invert_the_heading_rotation():
@@ -119,7 +121,12 @@ def test_controls_of_real_walking_point_ahead(xia_dir):
     model = PathWalker(spec, **TINY)
     clips = [c for c in list_clips(xia_dir) if c.content == 0][:6]
     for clip in clips:
-        raw = torch.from_numpy(encode(resample(load(clip), 30.0), CONTACTS)).unsqueeze(0).double()
+        motion = load(clip)
+        raw = (
+            torch.from_numpy(encode(resample(motion, 30.0), synthetic.xia_profile(motion)))
+            .unsqueeze(0)
+            .double()
+        )
         control = model.controls_of(raw)[0].unflatten(-1, (-1, 2))  # (F, K, 2)
         assert torch.all(control[:, 0] == 0)
         ahead = control[:-1, -1]  # the farthest point, 0.5 s ahead
@@ -166,12 +173,12 @@ def test_walk_command_writes_bvh_gif_plot_and_error(trained, tmp_path):
     args = ["walk", "--ckpt", str(trained), "--style", "old", "--path", str(path), "--out", str(out)]
     assert main(args) == 0
     manifest = json.loads((out / "old_corner.json").read_text())
-    assert manifest["frames"] == 61  # 24 units at 12 units/s, 30 fps, both ends
+    assert manifest["frames"] == 61  # 24 m at 12 m/s, 30 fps, both ends
     motion = read_bvh(out / "old_corner.bvh")
     assert motion.num_frames == 61
     np.testing.assert_allclose(motion.root_positions[0, [0, 2]], [0, 0], atol=1e-4)
     assert (out / "old_corner.gif").stat().st_size > 0 and (out / "old_corner_path.png").stat().st_size > 0
-    assert math.isfinite(manifest["path_error"]["error_percent"])
+    assert math.isfinite(manifest["path_error_m"]["error_percent"])
     assert main(args) == 1, "an existing output is not overwritten"
 
 

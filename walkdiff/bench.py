@@ -130,7 +130,7 @@ def _plain_seconds(config: str, batches: int, warmup: int) -> float:
     model, dm = _config_model_and_data(config)
     dm.setup("fit")
     model.normalizer.load_state_dict(dm.normalizer.state_dict())
-    model.skeleton = dm.skeleton  # the FK losses need it (Lightning's setup sets it too)
+    model.profile = dm.profile  # the FK losses need the skeleton (Lightning's setup sets it too)
     model.train()
     h = model.hparams
     (opt_g, opt_d), (sched_g, sched_d) = model.configure_optimizers()
@@ -411,11 +411,9 @@ class _QualityBench:
 
 def _fix_feet(model, windows):
     """The windows with `--fix-feet` applied to their raw features."""
-    from walkdiff.data.datasets import dataset_module
     from walkdiff.footfix import fix_feet_features
 
-    contacts = dataset_module(model.spec["dataset"]).CONTACTS
-    raw = fix_feet_features(windows.raw.numpy(), model.skeleton, model.spec["fps"], contacts)
+    raw = fix_feet_features(windows.raw.numpy(), model.profile, model.spec["fps"])
     return replace(windows, raw=torch.from_numpy(raw))
 
 

@@ -16,6 +16,10 @@ SAMPLER_HELP = (
 )
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
+PROFILE_HELP = (
+    "YAML/JSON of skeleton profile overrides (root, left_heel, left_toe, right_heel, right_toe, up, forward, "
+    "units, body_height, contact_speed, contact_height, mirror_pairs); the rest is found from the file"
+)
 
 
 def lightning_cli(args: list[str] | None) -> None:
@@ -78,14 +82,35 @@ def build_parser() -> argparse.ArgumentParser:
         "inspect", help="summarise a BVH file: joints, frames, fps, contacts, anything suspicious"
     )
     p.add_argument("file")
-    p.add_argument("--dataset", default="xia", help="contact thresholds of this dataset (default xia)")
+    p.add_argument("--profile", default=None, help=PROFILE_HELP)
 
     p = sub.add_parser("convert", help="BVH -> features -> BVH, optionally resampled and/or mirrored")
     p.add_argument("input")
     p.add_argument("output")
     p.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
-    p.add_argument("--mirror", action="store_true", help="swap left and right")
-    p.add_argument("--dataset", default="xia", help="contact thresholds of this dataset (default xia)")
+    p.add_argument("--mirror", action="store_true", help="swap left and right (in world space)")
+    p.add_argument("--profile", default=None, help=PROFILE_HELP)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+
+    p = sub.add_parser("data", help="your own motion capture: `walkdiff data scan DIR`")
+    data = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    d = data.add_parser(
+        "scan",
+        help="a folder of BVH files: skeleton profile, frame rates, labels, clip lengths, suggested window; "
+        "with --out, the evaluator and generator configs that `walkdiff fit --config` runs",
+    )
+    d.add_argument("folder", help="folder of BVH files (searched recursively)")
+    d.add_argument("--labels", default=None, help="CSV/JSON manifest: file, style, content, split columns")
+    d.add_argument("--pattern", default=None, help="regular expression with named groups style / content")
+    d.add_argument("--default-style", default=None, help="style of clips without one")
+    d.add_argument("--default-content", default=None, help="content of clips without one")
+    d.add_argument("--val-fraction", type=float, default=None, help="per label, held out for validation")
+    d.add_argument("--test-fraction", type=float, default=None, help="per label, held out for testing")
+    d.add_argument("--profile", default=None, help=PROFILE_HELP)
+    d.add_argument("--fps", type=float, default=None, help="training frame rate (default: 30, or the data's)")
+    d.add_argument("--name", default=None, help="config name (default: the folder's name)")
+    d.add_argument("--out", default=None, help="folder to write the two configs into")
+    d.add_argument("--overwrite", action="store_true", help="replace existing configs")
 
     p = sub.add_parser(
         "evaluate", help="FMD, recognition accuracy, diversity, skating, jitter over repeats: report.json/.md"
@@ -167,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--style", required=True, help="walking style, e.g. proud")
     p.add_argument("--path", required=True, help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}')
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--speed", type=float, default=None, help="units/s (default: the file's, or the style's)")
+    p.add_argument("--speed", type=float, default=None, help="m/s (default: the file's, or the style's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -183,7 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=5, help="samples of each take's audio (default 5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--clip-seconds", type=float, default=2.0, help="diversity clip length (default 2 s)")
-    p.add_argument("--pck-threshold", type=float, default=10.0, help="PCK distance (default 10 units)")
+    p.add_argument("--pck-threshold", type=float, default=0.1, help="PCK distance in metres (default 0.1)")
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
 
     p = sub.add_parser(
@@ -250,6 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in words
+    if debug:
+        words.remove("--debug")
+        argv = words
     try:
         if words and words[0] in LIGHTNING_VERBS:
             lightning_cli(argv)  # None: LightningCLI reads sys.argv itself
@@ -260,7 +289,20 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         return run_command(args)
     except WalkdiffError as error:
+        if debug:
+            raise
         print(f"walkdiff: error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("walkdiff: interrupted", file=sys.stderr)
+        return 130
+    except Exception as error:  # the boundary: no bare traceback for users; --debug shows it
+        if debug:
+            raise
+        print(
+            f"walkdiff: error: {type(error).__name__}: {error} (run again with --debug for the traceback)",
+            file=sys.stderr,
+        )
         return 1
 
 
@@ -268,15 +310,30 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "inspect":
         from walkdiff.tools import inspect_file
 
-        print(inspect_file(args.file, args.dataset))
+        print(inspect_file(args.file, args.profile))
     elif args.command == "convert":
         from walkdiff.tools import convert_file
 
         print(
             convert_file(
-                args.input, args.output, fps=args.fps, mirror_sides=args.mirror, dataset=args.dataset
-            )
+                args.input,
+                args.output,
+                fps=args.fps,
+                mirror_sides=args.mirror,
+                profile=args.profile,
+                overwrite=args.overwrite,
+            )  # fmt: skip
         )
+    elif args.command == "data":
+        from walkdiff.files import read_config
+        from walkdiff.scan import scan
+
+        options = vars(args).copy()
+        for key in ("command", "what"):
+            del options[key]
+        if options["profile"]:
+            options["profile"] = read_config(options["profile"], "--profile")
+        print(scan(**options))
     elif args.command == "evaluate":
         from walkdiff.evaluation import checkpoint_class, evaluate
 

@@ -30,7 +30,6 @@ from torchmetrics.classification import MulticlassAccuracy
 from tqdm import tqdm
 
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.data.datasets import dataset_module
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_json, write_text
 from walkdiff.metrics import (
@@ -110,7 +109,7 @@ class MotionScorer:
         self.spec = evaluator.spec
         self.fps = fps
         self.batch_size = batch_size
-        contacts = dataset_module(self.spec["dataset"]).CONTACTS
+        contacts = evaluator.profile.contacts
         self.foot_joints = [skeleton.index(name) for name in contacts.joints]
         self.speed_threshold = contacts.speed_threshold
         self.height_threshold = contacts.height_threshold

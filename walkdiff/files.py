@@ -32,3 +32,21 @@ def write_text(path: str | Path, text: str) -> Path:
 
 def write_json(path: str | Path, data) -> Path:
     return write_text(path, json.dumps(data, indent=2, ensure_ascii=False) + "\n")
+
+
+def read_config(path: str | Path, what: str) -> dict:
+    """A YAML or JSON mapping from a file, or a WalkdiffError naming the file and what was expected."""
+    from omegaconf import OmegaConf
+
+    from walkdiff.errors import WalkdiffError
+
+    path = Path(path)
+    if not path.is_file():
+        raise WalkdiffError(f"{what}: file not found", path=path)
+    try:
+        data = OmegaConf.to_container(OmegaConf.load(path))
+    except Exception as error:  # omegaconf raises yaml's errors, with the line in the message
+        raise WalkdiffError(f"{what}: not a YAML/JSON mapping ({error})", path=path) from None
+    if not isinstance(data, dict):
+        raise WalkdiffError(f"{what}: expected a mapping of fields, got {type(data).__name__}", path=path)
+    return data

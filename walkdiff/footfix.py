@@ -25,7 +25,8 @@ import roma
 import torch
 
 from walkdiff.motion.kinematics import forward_kinematics
-from walkdiff.motion.representation import ContactSpec, FeatureLayout, decode, encode, features_to_positions
+from walkdiff.motion.profile import ContactSpec, SkeletonProfile
+from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 # A leg is never stretched to exactly its full length: the knee angle would lose its direction.
@@ -148,18 +149,19 @@ def fix_feet(motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int
     return Motion(skeleton, rotations, motion.positions, motion.frame_time)
 
 
-def fix_feet_features(raw: np.ndarray, skeleton: Skeleton, fps: float, spec: ContactSpec) -> np.ndarray:
+def fix_feet_features(raw: np.ndarray, profile: SkeletonProfile, fps: float) -> np.ndarray:
     """`fix_feet` on feature windows (..., F, D) in data units: only the rotation channels of the joints
     and frames the IK moved change. The others keep their channels as sampled: encoding them again would
     orthonormalise their 6D rotations, the same pose but other numbers (the evaluator reads the numbers)."""
     raw = np.asarray(raw, dtype=np.float32)
+    skeleton, spec = profile.canonical_skeleton, profile.contacts
     layout = FeatureLayout(skeleton.num_joints)
     out = raw.copy()
     for index in np.ndindex(raw.shape[:-2]):
         motion = decode(raw[index], skeleton, 1.0 / fps)
         fixed = fix_feet(motion, raw[index][:, layout.contacts], spec)
         moved = np.abs(fixed.rotations - motion.rotations).max(axis=(-2, -1)) > 0  # (F, J)
-        sixd = encode(fixed, spec)[:, layout.rotations].reshape(len(moved), -1, 6)
+        sixd = encode(fixed, profile)[:, layout.rotations].reshape(len(moved), -1, 6)
         window = out[index][:, layout.rotations].reshape(sixd.shape)
         window[moved] = sixd[moved]
         out[index][:, layout.rotations] = window.reshape(len(moved), -1)

@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.data.datasets import dataset_module
 from walkdiff.diffusion import log_snr_timesteps, respace, run_steps, step_coefficients
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_json
@@ -30,7 +29,7 @@ from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions, start_pose
 from walkdiff.motion.resample import resample
-from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.skeleton import Motion
 from walkdiff.render import render_gif
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
@@ -305,28 +304,6 @@ def load_generator(path: str | Path, device: str = "cpu"):
     return StyledMotionDiffusion.from_trained(path, "generator", device)
 
 
-def skeleton_mismatch(found: Skeleton, expected: Skeleton) -> list[str]:
-    """What keeps a clip on `found` from being read as one on `expected` (empty: the same hierarchy)."""
-    problems = []
-    missing = [n for n in expected.names if n not in found.names]
-    extra = [n for n in found.names if n not in expected.names]
-    if missing:
-        problems.append(f"missing joints: {', '.join(missing)}")
-    if extra:
-        problems.append(f"unknown joints: {', '.join(extra)}")
-    if not problems:
-        if found.names != expected.names:
-            problems.append("the joints are in another order")
-        else:
-            moved = [
-                name
-                for name, p, q in zip(expected.names, expected.parents, found.parents, strict=True)
-                if p != q
-            ]
-            problems += [f"joints with another parent: {', '.join(moved)}"] if moved else []
-    return problems
-
-
 def _check_free(paths: list[Path], overwrite: bool) -> None:
     taken = [str(p) for p in paths if p.exists()]
     if taken and not overwrite:
@@ -341,14 +318,15 @@ def _finish(model, raw: np.ndarray, start: tuple[np.ndarray, float] | None, feet
     motion = decode(raw, model.skeleton, 1.0 / fps, position, heading)
     if feet:
         contacts = raw[:, FeatureLayout(model.skeleton.num_joints).contacts]
-        motion = fix_feet(motion, contacts, dataset_module(model.spec["dataset"]).CONTACTS)
+        motion = fix_feet(motion, contacts, model.profile.contacts)
     return motion
 
 
 def _write_clip(
-    path: Path, motion: Motion, title: str, gif: bool, others: tuple[tuple[Motion, str], ...] = ()
+    model, path: Path, motion: Motion, title: str, gif: bool, others: tuple[tuple[Motion, str], ...] = ()
 ) -> None:
-    write_bvh(path, motion)
+    """A canonical clip as BVH on the training files' skeleton; the GIF shows the canonical (Y-up) clip."""
+    write_bvh(path, model.to_file(motion))
     if gif:
         clips = [*others, (motion, title)]
         render_gif(
@@ -405,7 +383,7 @@ def sample(
     raw = model.to_raw(x, ground)
     out.mkdir(parents=True, exist_ok=True)
     for path, features in zip(bvh, raw, strict=True):
-        _write_clip(path, _finish(model, features, None, fix_feet), f"{label} {content}", gif)
+        _write_clip(model, path, _finish(model, features, None, fix_feet), f"{label} {content}", gif)
     manifest = {
         "command": "sample",
         "checkpoint": str(ckpt),
@@ -464,11 +442,8 @@ def transfer(
     overlap, blend = resolve_windows(model.spec["window"], overlap, blend)
     input = Path(input)
     motion = read_bvh(input)
-    problems = skeleton_mismatch(motion.skeleton, model.skeleton)
-    if problems:
-        raise WalkdiffError(
-            "the clip is on another skeleton than the model's: " + "; ".join(problems), path=input
-        )
+    model.profile.check(motion.skeleton, input)
+    motion = model.profile.to_canonical(motion)
     fps = model.spec["fps"]
     if abs(motion.fps - fps) > 1e-3 * fps:
         motion = resample(motion, fps)
@@ -477,8 +452,7 @@ def transfer(
     report_path = target.with_suffix(".json")
     _check_free([target, report_path] + ([target.with_suffix(".gif")] if gif else []), overwrite)
 
-    contacts = dataset_module(model.spec["dataset"]).CONTACTS
-    source = model.normalizer.normalize(torch.from_numpy(encode(motion, contacts)))[None]
+    source = model.normalizer.normalize(torch.from_numpy(encode(motion, model.profile)))[None]
     generator = torch.Generator(device=model.device).manual_seed(seed)
     started = time.perf_counter()
     x = restyle(
@@ -486,9 +460,9 @@ def transfer(
         keep_trajectory, overlap, blend,
     )  # fmt: skip
     elapsed = time.perf_counter() - started
-    result = _finish(model, model.to_raw(x, ground)[0], start_pose(motion), fix_feet)
+    result = _finish(model, model.to_raw(x, ground)[0], start_pose(motion, model.profile), fix_feet)
     out.mkdir(parents=True, exist_ok=True)
-    _write_clip(target, result, label, gif, others=((motion, "source"),))
+    _write_clip(model, target, result, label, gif, others=((motion, "source"),))
     report = {
         "command": "transfer",
         "checkpoint": str(ckpt),

@@ -4,7 +4,8 @@ Metrics (all on world positions of the modelled joints, root and other joints in
 generated and real motion are compared on the same footing):
 
 - L1: mean over frames and joints of |x - x'| + |y - y'| + |z - z'| against the ground truth.
-- PCK: the fraction of joints closer than `pck_threshold` (10 units = 10 cm for ZEGGS) to the truth.
+- PCK: the fraction of joints closer than `pck_threshold` metres (0.1 m; converted to the skeleton's units
+  with its profile) to the truth.
 - Beat consistency: motion beats B_m are the local minima of the mean joint speed, audio beats B_a the
   onsets; BC = 1/|B_m| sum_{b in B_m} exp(-min_{a in B_a} (b - a)^2 / (2 sigma^2)), sigma = 0.1 s.
 - Diversity: samples of the same audio cut into clips of equal length; the mean L1 over all pairs of
@@ -62,7 +63,7 @@ def synthesize(model, audio: np.ndarray, streams: int = 1, seed: int = 0, smooth
 
 
 def to_motion(model, features: np.ndarray) -> Motion:
-    """(F, D) features -> a clip on the model's full training skeleton."""
+    """(F, D) features -> a canonical clip (Y up) of the model's body; `model.to_file` writes it."""
     spec = model.spec
     joints = [model.skeleton.index(n) for n in spec["joints"]]
     return decode_poses(features, model.skeleton, joints, spec["rotation"], model.neutral, 1.0 / spec["fps"])
@@ -81,7 +82,7 @@ def write_clips(out: Path, stem: str, model, clips: list[np.ndarray], titles: li
     for clip, title in zip(clips, titles):
         motion = to_motion(model, clip)
         path = out / (f"{stem}.bvh" if len(clips) == 1 else f"{stem}_{title}.bvh")
-        write_bvh(path, motion)
+        write_bvh(path, model.to_file(motion))
         files.append(path)
         positions.append(motion_world_positions(motion))
     gif = out / f"{stem}.gif"
@@ -170,13 +171,16 @@ def evaluate_gesture(
     samples: int = 5,
     seed: int = 0,
     clip_seconds: float = 2.0,
-    pck_threshold: float = 10.0,
+    pck_threshold: float = 0.1,
     root: str | None = None,
 ) -> dict:
     """`walkdiff evaluate-gesture`: every metric on the held-out part of each take, into report.json."""
     if samples < 1:
         raise WalkdiffError(f"--samples must be >= 1, got {samples}")
+    if not 0 < pck_threshold < np.inf:
+        raise WalkdiffError(f"--pck-threshold must be a positive distance in metres, got {pck_threshold}")
     model = load_model(ckpt)
+    pck_units = pck_threshold / model.profile.metres_per_unit
     checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
     settings = dict(checkpoint.get("datamodule_hyper_parameters") or {})
     settings |= {"root": root} if root is not None else {}
@@ -204,7 +208,7 @@ def evaluate_gesture(
             beats = [_beat_row(p, onsets, fps, duration) for p in positions]
             row[name] = {
                 "l1": float(np.mean([l1_distance(p, truth) for p in positions])),
-                "pck": float(np.mean([pck(p, truth, pck_threshold) for p in positions])),
+                "pck": float(np.mean([pck(p, truth, pck_units) for p in positions])),
                 "bc": float(np.mean([b["bc"] for b in beats])),
                 "bc_shifted": float(np.mean([b["bc_shifted"] for b in beats])),
                 **beat_gain(beats),
@@ -225,7 +229,7 @@ def evaluate_gesture(
         "checkpoint": str(ckpt),
         "samples": samples,
         "seed": seed,
-        "pck_threshold": pck_threshold,
+        "pck_threshold_m": pck_threshold,
         "beat_sigma_s": BEAT_SIGMA,
         "shift_s": SHIFT_SECONDS,
         "clip_seconds": clip_seconds,

@@ -32,7 +32,9 @@ def load_walker(path: str | Path, device: str | torch.device = "cpu"):
 
 def frames_for(path: Polyline, speed: float, fps: float) -> int:
     """Frames to walk the whole path at `speed`."""
-    return max(2, math.ceil(path.length / speed * fps) + 1)
+    # A hair of tolerance: speeds are float32 tensors and paths converted from metres, so a walk of a
+    # whole number of frames may come out a millionth of a frame longer.
+    return max(2, math.ceil(path.length / speed * fps - 1e-4) + 1)
 
 
 def walk_paths(
@@ -108,9 +110,12 @@ def walk(
     if style not in styles:
         raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(styles)}")
     if speed is not None and not 0 < speed < math.inf:
-        raise WalkdiffError(f"--speed must be a positive number of units per second, got {speed}")
-    polyline, file_speed = read_path(path)
+        raise WalkdiffError(f"--speed must be a positive number of metres per second, got {speed}")
+    metres, file_speed = read_path(path)
+    unit = model.profile.metres_per_unit
+    polyline = Polyline.of(metres.points / unit)  # the model walks in its data's units
     speed = speed or file_speed
+    speed = None if speed is None else speed / unit
     out = Path(out)
     stem = f"{style}_{Path(path).stem}"
     bvh = out / f"{stem}.bvh"
@@ -123,8 +128,8 @@ def walk(
     elapsed = time.perf_counter() - started
     motion = to_motion(model, raw[0], start)
     root_xz = motion.root_positions[:, [0, 2]]
-    write_bvh(bvh, motion)
-    files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, polyline, [(style, root_xz)])])]
+    write_bvh(bvh, model.to_file(motion))
+    files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, metres, [(style, root_xz * unit)])])]
     if gif:
         skeleton = model.skeleton
         positions = motion_world_positions(motion)
@@ -135,13 +140,13 @@ def walk(
         "checkpoint": str(ckpt),
         "style": style,
         "path": str(path),
-        "path_length": polyline.length,
-        "speed": float(speeds[0]),
+        "path_length_m": metres.length,
+        "speed_m_s": float(speeds[0]) * unit,
         "seed": seed,
         "frames": motion.num_frames,
         "seconds": motion.num_frames / motion.fps,
         "generation_seconds": round(elapsed, 2),
-        "path_error": path_error(polyline, root_xz),
+        "path_error_m": path_error(metres, root_xz * unit),
         "files": [str(f) for f in files],
     }
     write_json(out / f"{stem}.json", manifest)

@@ -61,7 +61,7 @@ class SampleClips(L.Callback):
             for style, features in zip(styles, raw):
                 motion = decode(features, skeleton, 1.0 / pl_module.spec["fps"])
                 path = out / f"{style}_{self.content}.bvh"
-                write_bvh(path, motion)
+                write_bvh(path, pl_module.to_file(motion))
                 files.append(path)
                 positions.append(motion_world_positions(motion))
             gif = out / "styles.gif"

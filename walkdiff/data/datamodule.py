@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import lightning as L
@@ -13,27 +12,15 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from walkdiff.data.clips import ClipInfo, ContentSelection
-from walkdiff.data.datasets import dataset_module
-from walkdiff.data.preprocess import ProcessedClips, preprocess
+from walkdiff.data.datasets import open_source
+from walkdiff.data.preprocess import ProcessedClips, detect_profile, preprocess
 from walkdiff.errors import WalkdiffError
+from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, Normalizer
 from walkdiff.motion.skeleton import Skeleton
-from walkdiff.paths import dataset_dir
+from walkdiff.spec import DataSpec
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class DataSpec:
-    """What a model needs to know about its data; linked into the model by the CLI."""
-
-    dataset: str
-    feature_dim: int
-    num_joints: int
-    window: int
-    fps: float
-    styles: tuple[str, ...]
-    contents: tuple[str, ...]
 
 
 class WindowDataset(Dataset):
@@ -122,14 +109,22 @@ class MotionDataModule(WindowLoaders):
     """Windows of motion features with style and content labels.
 
     Args:
-        dataset: which dataset module reads the files (`xia`, `humanact12`).
-        root: data root; default $WALKDIFF_DATA, else ./data.
+        dataset: `folder` (any folder of BVH files), `xia` or `humanact12`.
+        root: the folder of BVH files (folder); else the data root, default $WALKDIFF_DATA, else ./data.
+        labels: folder: a CSV/JSON manifest (file, style, content, split); default labels.csv/.json in
+            the folder.
+        pattern: folder: a regular expression with named groups style/content over the file path.
+        default_style, default_content: folder: the label of clips that have none.
+        val_fraction, test_fraction: folder: per label, the clips held out (without a split column).
+        profile: skeleton profile overrides (root, left_heel, ..., up, forward, units, body_height,
+            contact_speed, contact_height, mirror_pairs); the rest is found from the clips.
         contents: content groups to use: 'walk' (the paper), 'all', or a comma-separated list.
         fps: frame rate the clips are resampled to.
         window: frames per training window. Xia's clips are short (walking: median 40 frames at
             30 fps), so 24 keeps 99% of the walking; longer motion is generated window by window.
         stride: frames between window starts.
-        mirror: add left/right mirrored copies of the training clips.
+        mirror: add left/right mirrored copies of the training clips (refused for a skeleton without
+            left/right pairs).
         cache_dir: where preprocessed features are kept.
         on_error: 'fail' on an unreadable clip, or 'skip' it with a warning that lists it.
         preprocess_workers: processes for the first (cold) preprocessing.
@@ -139,6 +134,13 @@ class MotionDataModule(WindowLoaders):
         self,
         dataset: str = "xia",
         root: str | None = None,
+        labels: str | None = None,
+        pattern: str | None = None,
+        default_style: str | None = None,
+        default_content: str | None = None,
+        val_fraction: float | None = None,
+        test_fraction: float | None = None,
+        profile: dict | None = None,
         contents: str = "walk",
         fps: float = 30.0,
         window: int = 24,
@@ -152,41 +154,54 @@ class MotionDataModule(WindowLoaders):
     ):
         super().__init__()
         self.save_hyperparameters()
-        self.module = dataset_module(dataset)
         if window < 2 or stride < 1:
             raise WalkdiffError(f"data.window must be >= 2 and data.stride >= 1, got {window} and {stride}")
-        self.selection = ContentSelection.parse(contents, self.module.GROUPS)
-        self.folder = dataset_dir(dataset, root)
-        self.clips = self.module.list_clips(self.folder)
-        self.splits = self.module.split_clips(self.clips, self.selection)
+        self.source = open_source(
+            dataset, root, profile, labels=labels, pattern=pattern, default_style=default_style,
+            default_content=default_content, val_fraction=val_fraction, test_fraction=test_fraction,
+        )  # fmt: skip
+        self.folder = self.source.folder
+        self.clips = self.source.list_clips()
+        self.selection = ContentSelection.parse(contents, self.source.groups)
+        self.splits = self.source.split_clips(self.clips, self.selection)
+        self._profile: SkeletonProfile | None = None
         self.processed: ProcessedClips | None = None
         self.normalizer: Normalizer | None = None
         self.datasets: dict[str, WindowDataset] = {}
 
     @property
+    def profile(self) -> SkeletonProfile:
+        """The skeleton profile, found from the first clip (cheap: before any preprocessing)."""
+        if self.processed is not None:
+            return self.processed.profile
+        if self._profile is None:
+            self._profile = detect_profile(self.source, self.clips)
+        return self._profile
+
+    @property
     def spec(self) -> DataSpec:
-        """Known before any preprocessing: the joint count comes from one clip's hierarchy."""
-        num_joints = self.module.load(self.clips[0]).skeleton.num_joints
+        """Known before any preprocessing: the joint count comes from the profile's body."""
+        num_joints = len(self.profile.body)
         return DataSpec(
             dataset=self.hparams.dataset,
             feature_dim=FeatureLayout(num_joints).dim,
             num_joints=num_joints,
             window=self.hparams.window,
             fps=self.hparams.fps,
-            styles=tuple(self.module.STYLES),
-            contents=tuple(self.module.GROUPS),
+            styles=tuple(self.source.styles),
+            contents=tuple(self.source.groups),
         )
 
     @property
     def skeleton(self) -> Skeleton:
-        self._ensure_processed()
-        return self.processed.skeleton
+        """The canonical skeleton the features are on."""
+        return self.profile.canonical_skeleton
 
     def _ensure_processed(self, progress: bool = True) -> ProcessedClips:
         if self.processed is None:
             h = self.hparams
             self.processed = preprocess(
-                h.dataset,
+                self.source,
                 self.clips,
                 fps=h.fps,
                 mirror=h.mirror,

@@ -33,7 +33,6 @@ import torch
 
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
 from walkdiff.errors import WalkdiffError
-from walkdiff.motion.representation import ContactSpec
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.smpl import BVH_ORDER, NUM_JOINTS, SMPL_NAMES, rest_offsets, smpl_skeleton
 
@@ -46,12 +45,9 @@ GROUPS = (
 )  # fmt: skip
 VAL_FRACTION = 0.1
 
-# SMPL's ankles stand for the heels and its 'foot' joints for the toes (the balls of the feet). In
-# metres, scaled from Xia's thresholds (1 CMU unit is about 5.6 cm: 5 units/s ~ 0.28 m/s, 0.5 units
-# ~ 2.8 cm) and widened for the jitter of SMPL fits to video; not tuned on the real file.
-CONTACTS = ContactSpec(
-    "left_ankle", "left_foot", "right_ankle", "right_foot", speed_threshold=0.4, height_threshold=0.05
-)
+# SMPL's ankles stand for the heels and its 'foot' joints for the toes (the balls of the feet): the
+# skeleton profile finds them by name. The joints are in metres.
+PROFILE = {"units": "m"}
 
 SCHEMA = (
     f"expected a pickled dict with keys poses (per clip: T x 72 SMPL axis-angle), joints3D (T x 24 x 3) "

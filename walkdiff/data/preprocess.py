@@ -11,6 +11,7 @@ import json
 import os
 import tempfile
 import warnings
+import zipfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -20,15 +21,16 @@ import numpy as np
 from tqdm import tqdm
 
 from walkdiff.data.clips import ClipInfo
-from walkdiff.data.datasets import dataset_module
+from walkdiff.data.datasets import MotionSource
 from walkdiff.errors import WalkdiffError
 from walkdiff.motion.mirror import mirror as mirror_motion
+from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import encode
 from walkdiff.motion.resample import resample
-from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+from walkdiff.motion.skeleton import Skeleton
 
 # Bump when encode() or the loaders change what they produce: old caches then rebuild.
-FEATURES_VERSION = 1
+FEATURES_VERSION = 2
 
 
 @dataclass
@@ -36,14 +38,21 @@ class ProcessedClips:
     names: list[str]
     features: list[np.ndarray]  # per clip (F, D) float32, at the configured rate
     mirrored: list[np.ndarray] | None  # the same clips mirrored left/right, when asked for
-    skeleton: Skeleton
+    profile: SkeletonProfile
     cache_file: Path
     from_cache: bool
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The canonical skeleton the features are on."""
+        return self.profile.canonical_skeleton
 
 
 def cache_key(dataset: str, clips: list[ClipInfo], settings: dict) -> str:
     digest = hashlib.sha256()
-    digest.update(json.dumps({"dataset": dataset, "version": FEATURES_VERSION, **settings}).encode())
+    digest.update(
+        json.dumps({"dataset": dataset, "version": FEATURES_VERSION, **settings}, sort_keys=True).encode()
+    )
     file_hashes: dict[Path, str] = {}
     for clip in clips:
         if clip.path not in file_hashes:
@@ -52,23 +61,32 @@ def cache_key(dataset: str, clips: list[ClipInfo], settings: dict) -> str:
     return digest.hexdigest()[:20]
 
 
-def _process_clip(dataset: str, clip: ClipInfo, fps: float, mirror: bool):
-    """Runs in a worker process: returns (features, mirrored features, skeleton dict) or an error text."""
+def detect_profile(source: MotionSource, clips: list[ClipInfo]) -> SkeletonProfile:
+    """The dataset's skeleton profile, from its first clip and the source's overrides."""
+    if not clips:
+        raise WalkdiffError("no clips to find the skeleton profile from", path=source.folder)
+    return SkeletonProfile.detect(source.load(clips[0]), source.profile)
+
+
+def _process_clip(source: MotionSource, profile: dict, clip: ClipInfo, fps: float, mirror: bool):
+    """Runs in a worker process: returns (features, mirrored features) or an error text."""
     import torch
 
     torch.set_num_threads(1)
-    module = dataset_module(dataset)
+    profile = SkeletonProfile.from_dict(profile)
     try:
-        motion = resample(module.load(clip), fps)
-        features = encode(motion, module.CONTACTS)
-        mirrored = encode(mirror_motion(motion), module.CONTACTS) if mirror else None
+        file_motion = source.load(clip)
+        profile.check(file_motion.skeleton, clip.path)
+        motion = resample(profile.to_canonical(file_motion), fps)
+        features = encode(motion, profile)
+        mirrored = encode(mirror_motion(motion, profile.body_pairs), profile) if mirror else None
     except WalkdiffError as error:
-        return None, None, None, str(error)
-    return features, mirrored, skeleton_to_dict(motion.skeleton), None
+        return None, None, str(error)
+    return features, mirrored, None
 
 
 def preprocess(
-    dataset: str,
+    source: MotionSource,
     clips: list[ClipInfo],
     *,
     fps: float,
@@ -80,12 +98,22 @@ def preprocess(
 ) -> ProcessedClips:
     if on_error not in ("fail", "skip"):
         raise WalkdiffError(f"data.on_error: expected 'fail' or 'skip', got {on_error!r}")
-    settings = {"fps": float(fps), "mirror": bool(mirror), "on_error": on_error}  # 20 and 20.0: one key
-    cache_file = Path(cache_dir) / f"{dataset}-{cache_key(dataset, clips, settings)}.npz"
+    profile = detect_profile(source, clips)
+    if mirror and not profile.can_mirror:
+        raise WalkdiffError(
+            "data.mirror: this skeleton cannot be mirrored (no left/right joint pairs found by name); "
+            "set data.mirror false, or name the pairs in data.profile.mirror_pairs"
+        )
+    # 20 and 20.0: one key. The profile settings are part of the key: an override rebuilds.
+    settings = {"fps": float(fps), "mirror": bool(mirror), "on_error": on_error, "profile": source.profile}
+    cache_file = Path(cache_dir) / f"{source.name}-{cache_key(source.name, clips, settings)}.npz"
     if cache_file.exists():
-        return _load(cache_file, mirror)
+        try:
+            return _load(cache_file, mirror)
+        except _StaleCache:
+            pass
 
-    results = _run(dataset, clips, fps, mirror, workers, progress)
+    results = _run(source, profile, clips, fps, mirror, workers, progress)
     failed = [(clip, err) for clip, (*_, err) in zip(clips, results) if err is not None]
     if failed:
         listing = "\n  ".join(err for _, err in failed)
@@ -95,23 +123,18 @@ def preprocess(
                 f"(set data.on_error=skip to leave them out):\n  {listing}"
             )
         warnings.warn(f"skipping {len(failed)} unreadable clip(s):\n  {listing}", stacklevel=2)
-    kept = [(clip, r) for clip, r in zip(clips, results) if r[3] is None]
+    kept = [(clip, r) for clip, r in zip(clips, results) if r[2] is None]
     if not kept:
         raise WalkdiffError("no clip could be read", path=clips[0].path.parent if clips else None)
-    skeleton = kept[0][1][2]
-    for clip, r in kept:
-        if r[2]["names"] != skeleton["names"] or r[2]["parents"] != skeleton["parents"]:
-            raise WalkdiffError(
-                f"skeleton differs from {kept[0][0].name}'s; all clips of a dataset must share one hierarchy",
-                path=clip.path,
-            )
-    _save(cache_file, kept, skeleton, mirror)
+    _save(cache_file, kept, profile, mirror)
     return _load(cache_file, mirror, from_cache=False)
 
 
-def _run(dataset: str, clips: list[ClipInfo], fps: float, mirror: bool, workers: int, progress: bool) -> list:
-    bar = tqdm(total=len(clips), desc=f"preprocessing {dataset}", unit="clip", disable=not progress)
-    args = [(dataset, clip, fps, mirror) for clip in clips]
+def _run(
+    source, profile, clips: list[ClipInfo], fps: float, mirror: bool, workers: int, progress: bool
+) -> list:
+    bar = tqdm(total=len(clips), desc=f"preprocessing {source.name}", unit="clip", disable=not progress)
+    args = [(source, profile.to_dict(), clip, fps, mirror) for clip in clips]
     if workers <= 1:
         results = []
         for a in args:
@@ -129,13 +152,13 @@ def _run(dataset: str, clips: list[ClipInfo], fps: float, mirror: bool, workers:
     return results
 
 
-def _save(cache_file: Path, kept: list, skeleton: dict, mirror: bool) -> None:
+def _save(cache_file: Path, kept: list, profile: SkeletonProfile, mirror: bool) -> None:
     cache_file.parent.mkdir(parents=True, exist_ok=True)
     arrays = {
         "names": np.array([clip.name for clip, _ in kept]),
         "lengths": np.array([r[0].shape[0] for _, r in kept]),
         "features": np.concatenate([r[0] for _, r in kept]),
-        "skeleton": np.array(json.dumps(skeleton)),
+        "profile": np.array(json.dumps(profile.to_dict())),
     }
     if mirror:
         arrays["mirrored"] = np.concatenate([r[1] for _, r in kept])
@@ -150,6 +173,21 @@ def _save(cache_file: Path, kept: list, skeleton: dict, mirror: bool) -> None:
 
 
 def _load(cache_file: Path, mirror: bool, from_cache: bool = True) -> ProcessedClips:
+    try:
+        return _read_cache(cache_file, mirror, from_cache)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+        if not from_cache:
+            raise
+        warnings.warn(f"{cache_file}: unreadable feature cache ({error}); rebuilding it", stacklevel=3)
+        cache_file.unlink(missing_ok=True)
+        raise _StaleCache from None
+
+
+class _StaleCache(Exception):
+    """A cache file that could not be read was removed; the caller builds it again."""
+
+
+def _read_cache(cache_file: Path, mirror: bool, from_cache: bool) -> ProcessedClips:
     with np.load(cache_file) as data:
         bounds = np.cumsum(data["lengths"])[:-1]
         features = np.split(data["features"], bounds)
@@ -158,7 +196,7 @@ def _load(cache_file: Path, mirror: bool, from_cache: bool = True) -> ProcessedC
             names=data["names"].tolist(),
             features=features,
             mirrored=mirrored,
-            skeleton=skeleton_from_dict(json.loads(str(data["skeleton"]))),
+            profile=SkeletonProfile.from_dict(json.loads(str(data["profile"]))),
             cache_file=cache_file,
             from_cache=from_cache,
         )

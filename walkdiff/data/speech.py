@@ -7,10 +7,13 @@ Each take becomes two aligned per-frame arrays at the motion frame rate (20 fps 
                       vectors, the paper), 6 for the 6D representation
     audio  (F, M)     M-band log-mel power (M = 27), mel frame k centred on motion frame k
 
-The root's translation and the joints outside the subset are not modelled: a decoded pose puts them in
-a neutral pose, the chordal mean of their training rotations (and the mean root position), so the BVH
-goes back onto the full training skeleton. Every take trains on its first `train_fraction` of frames
-and tests on the rest; with one take (ZEGGS here) validation uses the test part.
+Takes are read on the canonical skeleton of their profile (`walkdiff.motion.profile`: the body below
+the joint that carries the root motion, Y up), so any skeleton works, and decoded clips go back onto the
+takes' own skeleton, axes and units. The root's translation and the joints outside the subset are not
+modelled: a decoded pose puts them in a neutral pose, the chordal mean of their training rotations (and
+the mean root position), so the BVH goes back onto the full training skeleton. Every take trains on
+its first `train_fraction` of frames and tests on the rest; with one take (ZEGGS here) validation uses
+the test part.
 """
 
 from __future__ import annotations
@@ -28,11 +31,13 @@ from torch.utils.data import Dataset
 from walkdiff.data.datamodule import WindowLoaders
 from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import Normalizer
 from walkdiff.motion.resample import resample
 from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion, Skeleton
 from walkdiff.paths import dataset_dir
+from walkdiff.spec import NeutralPose, SpeechSpec
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +98,7 @@ def onset_times(samples: np.ndarray, rate: int) -> np.ndarray:
 
 def default_joints(skeleton: Skeleton) -> list[str]:
     """The first spine joint and everything below it, without fingers and 'End' leaf joints."""
-    spine = next((i for i, n in enumerate(skeleton.names) if n.lower().startswith("spine")), None)
+    spine = next((i for i, n in enumerate(skeleton.names) if "spine" in n.lower()), None)
     if spine is None:
         raise WalkdiffError("no joint named Spine*: give data.joints (the joint names to model) explicitly")
     below = {spine}
@@ -145,31 +150,6 @@ def pose_matrices(features: np.ndarray, rotation: str) -> np.ndarray:
     return matrices.numpy()
 
 
-@dataclass
-class NeutralPose:
-    """The pose of everything the model does not generate: all local rotations and the root position."""
-
-    rotations: np.ndarray  # (J, 3, 3) of the full skeleton
-    root: np.ndarray  # (3,)
-
-    @classmethod
-    def of(cls, motions: list[Motion]) -> NeutralPose:
-        """Chordal mean rotation of every joint (the rotation nearest the mean matrix) and mean root."""
-        rotations = np.concatenate([m.rotations for m in motions]).mean(axis=0)
-        mean = roma.special_procrustes(torch.tensor(rotations)).numpy()
-        root = np.concatenate([m.root_positions for m in motions]).mean(axis=0)
-        return cls(mean, root)
-
-    def to_dict(self) -> dict:
-        return {"rotations": self.rotations.tolist(), "root": self.root.tolist()}
-
-    @classmethod
-    def from_dict(cls, data: dict) -> NeutralPose:
-        return cls(
-            np.asarray(data["rotations"], dtype=np.float64), np.asarray(data["root"], dtype=np.float64)
-        )
-
-
 def decode_poses(
     features: np.ndarray,
     skeleton: Skeleton,
@@ -215,9 +195,14 @@ def list_takes(folder: Path) -> list[tuple[Path, Path]]:
     return [(bvhs[s], wavs[s]) for s in sorted(bvhs)]
 
 
-def load_take(bvh: Path, wav: Path, fps: float = 20.0, bands: int = 27) -> SpeechTake:
-    """Read, resample and align one take; more than one frame of length mismatch is an error."""
-    motion = resample(read_bvh(bvh), fps)
+def load_take(
+    bvh: Path, wav: Path, profile: SkeletonProfile, fps: float = 20.0, bands: int = 27
+) -> SpeechTake:
+    """Read (on the profile's canonical skeleton), resample and align one take; more than one frame of
+    length mismatch is an error."""
+    motion = read_bvh(bvh)
+    profile.check(motion.skeleton, bvh)
+    motion = resample(profile.to_canonical(motion), fps)
     audio = log_mel(*read_wav(wav), fps, bands)
     if abs(motion.num_frames - len(audio)) > 1:
         raise WalkdiffError(
@@ -231,22 +216,6 @@ def load_take(bvh: Path, wav: Path, fps: float = 20.0, bands: int = 27) -> Speec
 
 
 # ---------------------------------------------------------------- Lightning
-
-
-@dataclass(frozen=True)
-class SpeechSpec:
-    """What DiffMotion needs to know about its data; linked into the model by the CLI."""
-
-    dataset: str
-    feature_dim: int  # pose numbers per frame
-    num_joints: int  # joints modelled
-    window: int  # frames per training sequence
-    fps: float
-    joints: tuple[str, ...]
-    rotation: str
-    audio_dim: int
-    past: int  # audio frames before the current one in the control window
-    lookahead: int  # audio frames after it
 
 
 class SequenceDataset(Dataset):
@@ -310,6 +279,7 @@ class SpeechDataModule(WindowLoaders):
         train_fraction: float = 0.8,
         batch_size: int = 16,
         num_workers: int = 0,
+        profile: dict | None = None,
     ):
         super().__init__()
         self.save_hyperparameters()
@@ -332,20 +302,25 @@ class SpeechDataModule(WindowLoaders):
         self.audio_normalizer: Normalizer | None = None
         self.neutral: NeutralPose | None = None
         self.datasets: dict[str, SequenceDataset] = {}
+        self._profile: SkeletonProfile | None = None
+
+    @property
+    def profile(self) -> SkeletonProfile:
+        """The takes' skeleton profile, from the first take and the data.profile overrides."""
+        if self._profile is None:
+            self._profile = SkeletonProfile.detect(read_bvh(self.pairs[0][0]), self.hparams.profile)
+        return self._profile
 
     def load_takes(self) -> list[SpeechTake]:
         if self.takes is None:
             h = self.hparams
-            self.takes = [load_take(bvh, wav, h.fps, h.bands) for bvh, wav in self.pairs]
-            first = self.takes[0].motion.skeleton
-            for take in self.takes[1:]:
-                if not take.motion.skeleton.same_hierarchy(first):
-                    raise WalkdiffError(f"skeleton differs from that of {self.takes[0].bvh}", path=take.bvh)
+            self.takes = [load_take(bvh, wav, self.profile, h.fps, h.bands) for bvh, wav in self.pairs]
         return self.takes
 
     @property
     def skeleton(self) -> Skeleton:
-        return self.load_takes()[0].motion.skeleton
+        """The canonical skeleton the poses are on."""
+        return self.profile.canonical_skeleton
 
     @property
     def joint_names(self) -> list[str]:

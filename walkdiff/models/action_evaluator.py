@@ -17,11 +17,11 @@ import torch.nn.functional as F
 from torch import nn
 from torchmetrics.classification import MulticlassAccuracy
 
-from walkdiff.data.datamodule import DataSpec
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.base import MotionModule
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.motion.representation import features_to_positions
+from walkdiff.spec import DataSpec
 
 
 class ActionEvaluator(MotionModule):

@@ -1,4 +1,5 @@
-"""What every walkdiff LightningModule shares: its data spec, normaliser and skeleton, kept in checkpoints."""
+"""What every walkdiff LightningModule shares: its data spec, normaliser and skeleton profile, kept in
+checkpoints."""
 
 from __future__ import annotations
 
@@ -7,10 +8,11 @@ from pathlib import Path
 
 import lightning as L
 
-from walkdiff.data.datamodule import DataSpec
 from walkdiff.errors import WalkdiffError
+from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, Normalizer
-from walkdiff.motion.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.spec import DataSpec
 
 
 class MotionModule(L.LightningModule):
@@ -18,7 +20,8 @@ class MotionModule(L.LightningModule):
 
     The data spec (feature width, joints, labels) arrives from the data module through the CLI link and
     is saved as a plain dict in the hyperparameters; the normaliser is copied from the data module when
-    training starts and lives in the state dict; the skeleton is stored in the checkpoint.
+    training starts and lives in the state dict; the skeleton profile (the file's skeleton, root, feet,
+    axes, units) is stored in the checkpoint, so no command needs the dataset's code to use it.
     """
 
     def __init__(self, data_spec: DataSpec | dict | None):
@@ -30,7 +33,16 @@ class MotionModule(L.LightningModule):
         self.spec = data_spec if isinstance(data_spec, dict) else asdict(data_spec)
         self.layout = FeatureLayout(self.spec["num_joints"])
         self.normalizer = Normalizer(self.spec["feature_dim"])
-        self.skeleton: Skeleton | None = None
+        self.profile: SkeletonProfile | None = None
+
+    @property
+    def skeleton(self) -> Skeleton | None:
+        """The canonical skeleton the model's features are on (None before training starts)."""
+        return None if self.profile is None else self.profile.canonical_skeleton
+
+    def to_file(self, motion: Motion) -> Motion:
+        """A canonical clip on the training files' skeleton, axes and root layout, ready to write."""
+        return self.profile.to_file(motion)
 
     def setup(self, stage: str) -> None:
         datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
@@ -39,8 +51,8 @@ class MotionModule(L.LightningModule):
         datamodule.setup(stage)
         if stage == "fit":  # a resumed run then loads the same statistics back from its checkpoint
             self.normalizer.load_state_dict(datamodule.normalizer.state_dict())
-        if self.skeleton is None:
-            self.skeleton = datamodule.skeleton
+        if self.profile is None:
+            self.profile = datamodule.profile
 
     @classmethod
     def from_trained(cls, path: str | Path, what: str, device="cpu"):
@@ -57,18 +69,20 @@ class MotionModule(L.LightningModule):
             raise WalkdiffError(
                 f"not a {what} checkpoint ({type(error).__name__}: {error})", path=path
             ) from None
-        if model.skeleton is None:
+        if model.profile is None:
             raise WalkdiffError(
-                f"the {what} checkpoint has no skeleton; was it saved by `walkdiff fit`?", path=path
+                f"the {what} checkpoint has no skeleton profile; was it saved by `walkdiff fit` of this "
+                "walkdiff version?",
+                path=path,
             )
         return model.to(device).eval()
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         # Which model this is, for commands that take any checkpoint (`walkdiff evaluate`).
         checkpoint["model_class"] = f"{type(self).__module__}.{type(self).__qualname__}"
-        if self.skeleton is not None:
-            checkpoint["skeleton"] = skeleton_to_dict(self.skeleton)
+        if self.profile is not None:
+            checkpoint["skeleton_profile"] = self.profile.to_dict()
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        if "skeleton" in checkpoint:
-            self.skeleton = skeleton_from_dict(checkpoint["skeleton"])
+        if "skeleton_profile" in checkpoint:
+            self.profile = SkeletonProfile.from_dict(checkpoint["skeleton_profile"])

@@ -24,10 +24,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from walkdiff.data.speech import NeutralPose, SpeechSpec
 from walkdiff.diffusion import GaussianDiffusion, run_steps, step_coefficients
 from walkdiff.models.base import MotionModule
 from walkdiff.motion.representation import Normalizer
+from walkdiff.spec import NeutralPose, SpeechSpec
 
 
 def sinusoidal_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:

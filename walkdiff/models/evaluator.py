@@ -19,9 +19,9 @@ import torch.nn.functional as F
 from torch import nn
 from torchmetrics.classification import MulticlassAccuracy
 
-from walkdiff.data.datamodule import DataSpec
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.base import MotionModule
+from walkdiff.spec import DataSpec
 
 
 class ConvBlock(nn.Module):
@@ -81,8 +81,10 @@ class MotionEvaluator(MotionModule):
         self.content_head = nn.Linear(embed_dim, num_contents)
 
         for split in ("train", "val", "test"):
-            setattr(self, f"{split}_style_acc", MulticlassAccuracy(num_styles, average="micro"))
-            setattr(self, f"{split}_content_acc", MulticlassAccuracy(num_contents, average="micro"))
+            # A dataset with one style or one content group has a one-class head (always right);
+            # torchmetrics wants two classes at least.
+            setattr(self, f"{split}_style_acc", MulticlassAccuracy(max(num_styles, 2), average="micro"))
+            setattr(self, f"{split}_content_acc", MulticlassAccuracy(max(num_contents, 2), average="micro"))
 
     # ---------------------------------------------------------------- network
 
@@ -129,8 +131,8 @@ class MotionEvaluator(MotionModule):
         loss = style_loss + self.hparams.content_weight * content_loss
         style_acc = getattr(self, f"{split}_style_acc")
         content_acc = getattr(self, f"{split}_content_acc")
-        style_acc(style_logits, batch["style"])
-        content_acc(content_logits, batch["content"])
+        style_acc(style_logits.argmax(-1), batch["style"])  # class ids: heads may have one class
+        content_acc(content_logits.argmax(-1), batch["content"])
         batch_size = x.shape[0]
         self.log_dict(
             {f"{split}/loss": loss, f"{split}/loss_style": style_loss, f"{split}/loss_content": content_loss},

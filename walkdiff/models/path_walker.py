@@ -19,11 +19,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from walkdiff.data.datamodule import DataSpec
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
+from walkdiff.spec import DataSpec
 
 
 def local_offsets(targets: torch.Tensor, origin: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:

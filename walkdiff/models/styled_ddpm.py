@@ -9,8 +9,9 @@ Loss of the generator (the denoiser), per batch:
         + lambda_velocity * w_t * ||dP(x0_hat) - dP(x0)||^2           (joint velocities)
         + lambda_foot     * w_t * ||dP_feet(x0_hat)||^2 where x0's foot is in contact  (no sliding)
         + lambda_position * w_t * ||(P - P_root)(x0_hat) - (P - P_root)(x0)||^2  (the pose's geometry)
-The position terms measure velocities in multiples of the dataset's contact speed threshold (5 units/s
-for Xia) and positions in contact heights (0.5 units), so they are unitless; a foot that slides at the
+The position terms measure velocities in multiples of the skeleton profile's contact speed threshold
+(0.2 body heights/s: 4.8 units/s for Xia) and positions in contact heights (0.02 body heights), so they
+are unitless whatever the skeleton's size and units; a foot that slides at the
 threshold speed costs 1.
 The paper's losses constrain root and contact labels but not the legs, so its stance feet slide: the
 foot term is the foot-contact loss of MDM (Tevet et al. 2023), which is what the skating metric checks.
@@ -38,8 +39,6 @@ import torch
 import torch.nn.functional as F
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from walkdiff.data.datamodule import DataSpec
-from walkdiff.data.datasets import dataset_module
 from walkdiff.diffusion import (
     GaussianDiffusion,
     ddim_sample,
@@ -56,6 +55,7 @@ from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.motion.representation import decode_root, features_to_positions
+from walkdiff.spec import DataSpec
 
 log = logging.getLogger(__name__)
 
@@ -179,7 +179,7 @@ class StyledMotionDiffusion(MotionModule):
 
     @property
     def contact_spec(self):
-        return dataset_module(self.spec["dataset"]).CONTACTS
+        return self.profile.contacts
 
     def _foot_joints(self) -> list[int]:
         return [self.skeleton.index(name) for name in self.contact_spec.joints]

@@ -1,8 +1,9 @@
 """2-D paths on the ground plane (x, z): reading them from JSON, arc length, projection, distance.
 
 A path file is JSON, either a list of points `[[x, z], ...]` or an object
-`{"points": [[x, z], ...], "speed": 25.0}` with an optional walking speed in data units per second
-(Xia: ~6 cm per unit). Points are in the units of the training data.
+`{"points": [[x, z], ...], "speed": 1.4}` with an optional walking speed, in metres and metres per
+second whatever the skeleton: the walker converts them with its skeleton profile's units. x and z are
+the two ground axes (the profile turns any up axis to y).
 """
 
 from __future__ import annotations
@@ -93,7 +94,7 @@ def read_path(path: str | Path) -> tuple[Polyline, float | None]:
             )
         speed = data.get("speed")
         if speed is not None and (not isinstance(speed, int | float) or not 0 < speed < math.inf):
-            raise WalkdiffError(f"'speed' must be a positive number (units/s), got {speed!r}", path=path)
+            raise WalkdiffError(f"'speed' must be a positive number (m/s), got {speed!r}", path=path)
         data = data["points"]
     if not isinstance(data, list) or len(data) < 2:
         raise WalkdiffError("'points' must be a list of at least 2 [x, z] pairs", path=path)

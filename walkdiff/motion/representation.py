@@ -1,6 +1,8 @@
 """Motion <-> per-frame feature vectors, and the per-channel normaliser that models train on.
 
-One frame is D = 4 + 6J + 4 numbers (Y is up, the ground is the XZ plane):
+Features are made from canonical clips (`walkdiff.motion.profile`: the body below the root joint, Y up,
+the ground the XZ plane, in the file's units), so every skeleton, axis convention and root layout
+gives the same kind of vector. One frame is D = 4 + 6J + 4 numbers:
 
     root_vel     (2)   root displacement to the next frame, x and z in the heading frame of this frame
     root_height  (1)   root y
@@ -9,10 +11,10 @@ One frame is D = 4 + 6J + 4 numbers (Y is up, the ground is the XZ plane):
                        relative to its heading, so the features do not depend on where the clip faces
     contacts     (4)   left heel, left toe, right heel, right toe in {0, 1}
 
-The heading is the yaw of the root: its forward axis (a local axis, +Z for the CMU skeleton of Xia)
-turned into the world and projected on the ground. Velocities are forward differences, so the last
-frame has no next frame: it repeats the previous frame's values (zeros for a one-frame clip), and
-decoding never reads them. Features are computed in float64 and returned as float32.
+The heading is the yaw of the root: its forward axis (a local axis found by the skeleton profile, +Z
+for the CMU skeleton of Xia) turned into the world and projected on the ground. Velocities are forward
+differences, so the last frame has no next frame: it repeats the previous frame's values (zeros for a
+one-frame clip), and decoding never reads them. Features are computed in float64 and returned as float32.
 """
 
 from __future__ import annotations
@@ -26,10 +28,9 @@ import torch
 from torch import nn
 
 from walkdiff.motion.kinematics import forward_kinematics, motion_world_positions
+from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion, Skeleton
-
-CMU_FORWARD = (0.0, 0.0, 1.0)  # the CMU rest pose faces +Z (its toes point that way)
 
 
 @dataclass(frozen=True)
@@ -61,52 +62,21 @@ class FeatureLayout:
         return cls((dim - 8) // 6)
 
 
-@dataclass(frozen=True)
-class ContactSpec:
-    """Which joints touch the ground and when a joint counts as touching it.
-
-    A joint is in contact when it moves slower than `speed_threshold` (units/s) and is lower than
-    `height_threshold` (units) above its own floor, the `floor_percentile`-th percentile of its height
-    over the clip. A per-joint floor copes with clips whose floor is offset, and with skeletons whose
-    left and right feet do not reach the same height (Xia's right toe sits ~0.2 units below the left).
-    """
-
-    left_heel: str
-    left_toe: str
-    right_heel: str
-    right_toe: str
-    speed_threshold: float
-    height_threshold: float
-    floor_percentile: float = 5.0
-
-    @property
-    def joints(self) -> tuple[str, str, str, str]:
-        return (self.left_heel, self.left_toe, self.right_heel, self.right_toe)
-
-
-# Xia (CMU units, a leg is ~14 units, so 1 unit is ~6 cm). Foot speeds measured over 72 clips at
-# 120 fps: toes either rest (< 2 units/s) or swing (20-60 units/s) with a trough at 4-6 units/s, so 5
-# units/s. Slow toes lie within 0.3 units of their floor; slow heels mostly within 0.45, the rest are
-# heels lifted and turning about the planted toe, which 0.5 units excludes.
-XIA_CONTACTS = ContactSpec(
-    "LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase", speed_threshold=5.0, height_threshold=0.5
-)
-
-
 def yaw_matrix(heading: torch.Tensor) -> torch.Tensor:
     """(...,) angles -> (..., 3, 3) rotations about +Y; yaw_matrix(h) turns +Z to (sin h, 0, cos h)."""
     return roma.rotvec_to_rotmat(heading.unsqueeze(-1) * heading.new_tensor([0.0, 1.0, 0.0]))
 
 
-def root_heading(root_rotations: torch.Tensor, forward: Sequence[float] = CMU_FORWARD) -> torch.Tensor:
+def root_heading(root_rotations: torch.Tensor, forward: Sequence[float]) -> torch.Tensor:
     """(..., 3, 3) root world rotations -> (...,) heading angles (yaw of the forward axis)."""
     direction = root_rotations @ root_rotations.new_tensor(forward)
     return torch.atan2(direction[..., 0], direction[..., 2])
 
 
-def start_pose(motion: Motion, forward: Sequence[float] = CMU_FORWARD) -> tuple[np.ndarray, float]:
-    """Root (x, z) and heading at frame 0: pass them to `decode` to put a decoded clip back in place."""
-    heading = root_heading(torch.tensor(motion.rotations[0, 0]), forward)
+def start_pose(motion: Motion, profile: SkeletonProfile) -> tuple[np.ndarray, float]:
+    """Root (x, z) and heading at frame 0 of a canonical clip: pass them to `decode` to put a decoded
+    clip back in place."""
+    heading = root_heading(torch.tensor(motion.rotations[0, 0]), profile.forward)
     return motion.root_positions[0, [0, 2]].copy(), float(heading)
 
 
@@ -131,18 +101,18 @@ def foot_contacts(motion: Motion, spec: ContactSpec) -> np.ndarray:
     return ((speed < spec.speed_threshold) & (height < spec.height_threshold)).double().numpy()
 
 
-def encode(motion: Motion, spec: ContactSpec, forward: Sequence[float] = CMU_FORWARD) -> np.ndarray:
-    """(F, 8 + 6J) float32 features of a clip; `forward` is the root's local forward axis."""
+def encode(motion: Motion, profile: SkeletonProfile) -> np.ndarray:
+    """(F, 8 + 6J) float32 features of a canonical clip (`SkeletonProfile.to_canonical`)."""
     rotations = torch.tensor(motion.rotations)
     root = torch.tensor(motion.root_positions)
-    heading = root_heading(rotations[:, 0], forward)
+    heading = root_heading(rotations[:, 0], profile.forward)
     to_heading = yaw_matrix(heading).transpose(-1, -2)
 
     local = rotations.clone()
     local[:, 0] = to_heading @ rotations[:, 0]
     step = _per_step((to_heading[:-1] @ (root[1:] - root[:-1]).unsqueeze(-1)).squeeze(-1))
     heading_vel = _per_step(_wrap(heading[1:] - heading[:-1]))
-    contacts = torch.from_numpy(foot_contacts(motion, spec))
+    contacts = torch.from_numpy(foot_contacts(motion, profile.contacts))
 
     features = torch.cat(
         [

@@ -1,0 +1,164 @@
+"""Your own data: Xia disguised as another lab's capture gives Xia's features, and trains through the CLI.
+
+The disguises (tests/disguise.py) rename every joint to another convention, put a static root above the
+hips with the translation moved onto the hips, write metres instead of CMU units, another rotation
+order, a Z-up world and 60 fps, and give the labels in a CSV instead of the file names. Nothing of that
+may change what walkdiff computes: features (translations after unit scaling), contact labels and world
+positions must equal native Xia's.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import disguise
+import numpy as np
+import pytest
+import synthetic
+from omegaconf import OmegaConf
+
+from walkdiff.cli import main
+from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.profile import SkeletonProfile
+from walkdiff.motion.representation import FeatureLayout, encode
+from walkdiff.motion.resample import resample
+
+# One walk per style, a run, a jump and a kick: turning, fast and airborne feet.
+CLIPS = [
+    "angry_01_000", "childlike_03_000", "depressed_07_000", "neutral_09_000", "old_04_000",
+    "proud_02_000", "sexy_05_000", "strutting_11_000", "neutral_13_000", "old_16_000", "sexy_22_000",
+]  # fmt: skip
+CHAINS = {
+    "unreal, static root, metres, XYZ, Z-up, 60 fps": disguise.DEFAULT_STEPS,
+    "mixamo, Blender-style turned root, cm, ZXY": ("mixamo", "static_root:X-90", "cm", "order:ZXY"),
+    "smpl, position channels everywhere, YXZ": ("smpl", "positions", "order:YXZ"),
+}
+
+
+def _features(motion, profile) -> tuple[np.ndarray, np.ndarray]:
+    canonical = resample(profile.to_canonical(motion), 30.0)
+    return encode(canonical, profile), motion_world_positions(canonical)
+
+
+@pytest.mark.parametrize("chain", list(CHAINS))
+def test_disguised_xia_has_native_features_contacts_and_positions(xia_dir, tmp_path, chain):
+    worst = {"translation": 0.0, "rotation": 0.0, "positions": 0.0}
+    agree, frames = 0, 0
+    for name in CLIPS:
+        native = read_bvh(xia_dir / f"{name}.bvh")
+        native_profile = synthetic.xia_profile(native)
+        copy, record = disguise.disguise(native, CHAINS[chain])
+        path = tmp_path / "take.bvh"
+        write_bvh(path, copy, precision=disguise.default_precision(record.scale))
+        copy = read_bvh(path)
+        profile = SkeletonProfile.detect(copy)  # nothing configured: everything is found
+        assert profile.root == record.names["Hips"]
+        assert profile.feet["left_heel"] == record.names["LeftFoot"]
+        assert profile.feet["right_toe"] == record.names["RightToeBase"]
+        assert profile.contacts.speed_threshold == pytest.approx(
+            record.scale * native_profile.contacts.speed_threshold, rel=1e-6
+        )
+        x, world = _features(native, native_profile)
+        y, copy_world = _features(copy, profile)
+        layout = FeatureLayout(native.skeleton.num_joints)
+        assert y.shape == x.shape
+        translation = [0, 1, 2]  # root velocity (x, z) and height: lengths, in the copy's units
+        worst["translation"] = max(
+            worst["translation"], np.abs(y[:, translation] / record.scale - x[:, translation]).max()
+        )
+        rotations = np.r_[3, np.arange(layout.rotations.start, layout.rotations.stop)]
+        worst["rotation"] = max(worst["rotation"], np.abs(y[:, rotations] - x[:, rotations]).max())
+        # Canonical world positions: the same motion, Y up, in the copy's units.
+        worst["positions"] = max(worst["positions"], np.abs(copy_world / record.scale - world).max() / 24.13)
+        agree += (y[:, layout.contacts] == x[:, layout.contacts]).all(axis=1).sum()
+        frames += len(x)
+    print(f"{chain}: {worst}, contacts agree on {agree}/{frames} frames")
+    assert worst["translation"] < 1e-4  # CMU units (~6 mm per 0.1 unit)
+    assert worst["rotation"] < 1e-4
+    assert worst["positions"] < 1e-5  # of body height
+    assert agree >= 0.99 * frames
+
+
+def test_round_trip_of_disguised_files_through_convert(xia_dir, tmp_path):
+    """`convert` writes the copy's own skeleton, axes, units and root layout back, unchanged."""
+    for name in CLIPS[:4]:
+        copy, record = disguise.disguise(read_bvh(xia_dir / f"{name}.bvh"), disguise.DEFAULT_STEPS)
+        source = tmp_path / f"{name}.bvh"
+        write_bvh(source, copy, precision=9)
+        out = tmp_path / f"{name}_out.bvh"
+        assert main(["convert", str(source), str(out)]) == 0
+        back = read_bvh(out)
+        assert back.skeleton.names == copy.skeleton.names
+        error = np.abs(motion_world_positions(back) - motion_world_positions(read_bvh(source))).max()
+        assert error < 1e-4 * 24.13 * record.scale  # 1e-4 of body height
+
+
+@pytest.fixture(scope="module")
+def disguised_folder(xia_dir, tmp_path_factory) -> Path:
+    """16 walks of 4 styles, disguised, with their labels in labels.csv."""
+    folder = tmp_path_factory.mktemp("own") / "studio"
+    names = sorted(p.stem for p in xia_dir.glob("*.bvh"))
+    walks = [n for n in names if int(n.split("_")[1]) <= 12]  # content ids 01-12 are walks
+    picked = []
+    for style in ("angry", "old", "proud", "sexy"):
+        picked += [n for n in walks if n.startswith(style + "_")][::3][:4]
+    disguise.disguised_folder(xia_dir, folder, picked)
+    return folder
+
+
+def test_scan_then_fit_sample_and_transfer_on_disguised_xia(disguised_folder, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # the configs' mlruns/ and checkpoints/ land here
+    monkeypatch.setattr("sys.argv", ["walkdiff"])  # LightningCLI warns about pytest's own arguments
+    assert main(["data", "scan", str(disguised_folder), "--out", "conf", "--name", "studio"]) == 0
+    report = capsys.readouterr().out
+    assert "root:      pelvis (static above it, folded: Root)" in report and "up +z" in report
+    assert "units:     m" in report and "angry 4" in report
+    generator = OmegaConf.load("conf/studio.yaml")
+    assert generator.data.init_args.dataset == "folder" and generator.data.init_args.mirror is True
+
+    quick = ["--trainer.enable_progress_bar", "false", "--trainer.log_every_n_steps", "1"]  # fmt: skip
+    assert main(["fit", "--config", "conf/evaluator_studio.yaml", "--trainer.max_epochs", "1", *quick]) == 0
+    assert Path("checkpoints/evaluator_studio/last.ckpt").is_file()
+    # The config as written, with a tiny network and a few batches: up to its first validation and metrics.
+    tiny = ["--model.d_model", "32", "--model.layers", "1", "--model.heads", "2",
+            "--trainer.limit_train_batches", "2", "--trainer.max_epochs", "5"]  # fmt: skip
+    assert main(["fit", "--config", "conf/studio.yaml", *quick, *tiny]) == 0
+    ckpt = "checkpoints/studio/last.ckpt"
+    assert Path(ckpt).is_file()
+
+    sample = ["sample", "--ckpt", ckpt, "--style", "old", "--num", "1", "--frames", "40", "--sampler", "ddim"]
+    assert main([*sample, "--steps", "3", "--out", "samples", "--no-gif"]) == 0
+    out = read_bvh(next(Path("samples").glob("*.bvh")))
+    first = read_bvh(next(disguised_folder.glob("*.bvh")))
+    assert out.skeleton.names == first.skeleton.names and out.num_frames == 40
+    world = motion_world_positions(out)
+    head, feet = out.skeleton.index("head"), [out.skeleton.index(n) for n in ("foot_l", "foot_r")]
+    rise = world[:, head] - world[:, feet].mean(axis=1)
+    assert (rise[:, 2] > 0.8).all(), "Z up, in metres: the head is ~1 m above the feet"
+    np.testing.assert_allclose(out.positions[:, 0], 0.0)  # the static root stays where it was
+
+    source = sorted(disguised_folder.glob("*.bvh"))[0]
+    assert main(["transfer", "--ckpt", ckpt, "--input", str(source), "--style", "proud", "--out", "moved",
+                 "--sampler", "ddim", "--steps", "3", "--no-gif"]) == 0  # fmt: skip
+    moved = read_bvh(next(Path("moved").glob("*.bvh")))
+    assert moved.skeleton.names == first.skeleton.names
+    report = json.loads(next(Path("moved").glob("*.json")).read_text())
+    assert np.isfinite(report["root_path_error"]["mean"])
+
+
+def test_zeggs_loads_through_the_folder_dataset(zeggs_dir, tmp_path):
+    dm = MotionDataModule(
+        dataset="folder", root=str(zeggs_dir), contents="all", window=24, cache_dir=str(tmp_path),
+        preprocess_workers=1, val_fraction=0.0, test_fraction=0.0,
+    )  # fmt: skip
+    assert dm.profile.root == "Hips" and dm.profile.units == "cm"
+    assert dm.spec.num_joints == 75 and dm.spec.styles == ("none",)
+    feet = dm.profile.feet
+    assert (feet["left_heel"], feet["left_toe"]) == ("LeftFoot", "LeftToeBase")
+    assert (feet["right_heel"], feet["right_toe"]) == ("RightFoot", "RightToeBase")
+    features = dm.split_features("train", mirrored=True)
+    assert len(features) == 2 and all(np.isfinite(f).all() for _, _, f in features)
+    assert features[0][2].shape == (2065, FeatureLayout(75).dim)
