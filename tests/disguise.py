@@ -550,3 +550,32 @@ def disguised_folder(
         raise ValueError("no clips given")
     record.manifest = write_labels(out_dir, record.files, labels, splits)
     return record
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """`python tests/disguise.py XIA_DIR OUT_DIR`: Xia's walks, disguised, labels and Xia's split in a CSV.
+
+    The disguised dataset the README's own-data figures are measured on (no committed data: made here).
+    """
+    import argparse
+
+    from walkdiff.data import xia
+    from walkdiff.data.clips import ContentSelection
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("xia_dir")
+    parser.add_argument("out_dir")
+    parser.add_argument("--contents", default="walk", help="Xia content groups (default walk)")
+    parser.add_argument("--steps", default=",".join(DEFAULT_STEPS), help="disguise chain, comma-separated")
+    args = parser.parse_args(argv)
+    clips = xia.list_clips(Path(args.xia_dir))
+    splits = xia.split_clips(clips, ContentSelection.parse(args.contents, xia.GROUPS))
+    split_of = {f"{c.name}.bvh": split for split, members in splits.items() for c in members}
+    record = disguised_folder(
+        args.xia_dir, args.out_dir, sorted(split_of), args.steps.split(","), splits=split_of
+    )
+    print(f"wrote {len(record.files)} disguised clips and {record.manifest} ({', '.join(record.steps)})")
+
+
+if __name__ == "__main__":
+    main()
