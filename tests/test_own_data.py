@@ -98,13 +98,13 @@ def test_round_trip_of_disguised_files_through_convert(xia_dir, tmp_path):
 
 @pytest.fixture(scope="module")
 def disguised_folder(xia_dir, tmp_path_factory) -> Path:
-    """16 walks of 4 styles, disguised, with their labels in labels.csv."""
+    """24 walks of 4 styles, disguised, with their labels in labels.csv."""
     folder = tmp_path_factory.mktemp("own") / "studio"
     names = sorted(p.stem for p in xia_dir.glob("*.bvh"))
     walks = [n for n in names if int(n.split("_")[1]) <= 12]  # content ids 01-12 are walks
     picked = []
     for style in ("angry", "old", "proud", "sexy"):
-        picked += [n for n in walks if n.startswith(style + "_")][::3][:4]
+        picked += [n for n in walks if n.startswith(style + "_")][::3][:6]
     disguise.disguised_folder(xia_dir, folder, picked)
     return folder
 
@@ -112,10 +112,12 @@ def disguised_folder(xia_dir, tmp_path_factory) -> Path:
 def test_scan_then_fit_sample_and_transfer_on_disguised_xia(disguised_folder, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)  # the configs' mlruns/ and checkpoints/ land here
     monkeypatch.setattr("sys.argv", ["walkdiff"])  # LightningCLI warns about pytest's own arguments
-    assert main(["data", "scan", str(disguised_folder), "--out", "conf", "--name", "studio"]) == 0
+    # Two test clips per style: `evaluate` splits the real test set into halves for its FMD floor.
+    scan = ["data", "scan", str(disguised_folder), "--test-fraction", "0.34", "--val-fraction", "0.17"]
+    assert main([*scan, "--out", "conf", "--name", "studio"]) == 0
     report = capsys.readouterr().out
     assert "root:      pelvis (static above it, folded: Root)" in report and "up +z" in report
-    assert "units:     m" in report and "angry 4" in report
+    assert "units:     m" in report and "angry 6" in report
     generator = OmegaConf.load("conf/studio.yaml")
     assert generator.data.init_args.dataset == "folder" and generator.data.init_args.mirror is True
 
@@ -148,6 +150,19 @@ def test_scan_then_fit_sample_and_transfer_on_disguised_xia(disguised_folder, tm
     report = json.loads(next(Path("moved").glob("*.json")).read_text())
     assert np.isfinite(report["root_path_error"]["mean"])
 
+    # Foot clean-up, evaluation with the folder's own evaluator, and distillation take the checkpoint as is.
+    assert main([*sample, "--steps", "3", "--out", "feet", "--no-gif", "--fix-feet"]) == 0
+    evaluator = "checkpoints/evaluator_studio/last.ckpt"
+    assert main(["evaluate", "--ckpt", ckpt, "--evaluator", evaluator, "--out", "eval", "--num", "16",
+                 "--repeats", "2", "--sampler", "ddim", "--steps", "2"]) == 0  # fmt: skip
+    rows = json.loads(Path("eval/report.json").read_text())["rows"]
+    assert len(rows) >= 2 and all(np.isfinite(row["fmd"]["mean"]) for row in rows.values())
+    assert (
+        main(["distill", "--ckpt", ckpt, "--out", "student.ckpt", "--iterations", "2", "--steps", "2"]) == 0
+    )
+    assert main([*sample, "--steps", "2", "--ckpt", "student.ckpt", "--out", "student", "--no-gif"]) == 0
+    assert read_bvh(next(Path("student").glob("*.bvh"))).skeleton.names == first.skeleton.names
+
 
 def test_zeggs_loads_through_the_folder_dataset(zeggs_dir, tmp_path):
     dm = MotionDataModule(
@@ -162,3 +177,78 @@ def test_zeggs_loads_through_the_folder_dataset(zeggs_dir, tmp_path):
     features = dm.split_features("train", mirrored=True)
     assert len(features) == 2 and all(np.isfinite(f).all() for _, _, f in features)
     assert features[0][2].shape == (2065, FeatureLayout(75).dim)
+
+
+def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatch):
+    """DiffMotion on BVH + WAV takes of another skeleton: Unreal names, static root, metres, Z-up."""
+    import lightning as L
+    import soundfile
+    import torch
+    from test_diffmotion import TINY
+
+    from walkdiff.data.speech import SpeechDataModule, read_wav
+    from walkdiff.models.diffmotion import DiffMotion
+
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    take = read_bvh(zeggs_dir / "067_Speech_2_x_1_0.bvh").slice(0, 300)  # 10 s at 30 fps
+    copy, record = disguise.disguise(take, ("unreal", "static_root", "scale:0.01", "z_up"))  # cm -> m
+    write_bvh(folder / "talk.bvh", copy, precision=8)
+    samples, rate = read_wav(zeggs_dir / "067_Speech_2_x_1_0.wav")
+    soundfile.write(folder / "talk.wav", samples[: 10 * rate], rate)
+
+    dm = SpeechDataModule(str(folder), window=40, stride=10, past=5, lookahead=8, batch_size=4)
+    assert dm.profile.root == record.names["Hips"] and dm.profile.units == "m"
+    assert np.allclose(dm.profile.up, [0, 0, 1])
+    torch.manual_seed(0)
+    model = DiffMotion(dm.spec, **TINY)
+    trainer = L.Trainer(
+        accelerator="cpu", max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
+    )  # fmt: skip
+    trainer.fit(model, dm)
+    ckpt = tmp_path / "gesture.ckpt"
+    trainer.save_checkpoint(ckpt)
+
+    out = tmp_path / "out"
+    assert main(["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "talk.wav"), "--out", str(out)]) == 0
+    motion = read_bvh(out / "talk.bvh")
+    assert motion.skeleton.names == copy.skeleton.names
+    world = motion_world_positions(motion)
+    root = motion.skeleton.index(record.names["Hips"])
+    # The neutral root stands where the take's hips stood (Z up, metres), not at the static root's origin.
+    np.testing.assert_allclose(
+        world[:, root].mean(0), motion_world_positions(copy)[:, root].mean(0), atol=0.05
+    )
+
+
+def test_path_walker_on_disguised_xia_walks_a_path_in_metres(disguised_folder, tmp_path, monkeypatch):
+    import lightning as L
+    import torch
+    from test_walk import TINY
+
+    from walkdiff.models.path_walker import PathWalker
+
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+    dm = MotionDataModule(
+        dataset="folder", root=str(disguised_folder), contents="all", cache_dir=str(tmp_path / "cache"),
+        batch_size=8, preprocess_workers=1,
+    )  # fmt: skip
+    torch.manual_seed(0)
+    model = PathWalker(dm.spec, **TINY)
+    trainer = L.Trainer(
+        accelerator="cpu", max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
+    )  # fmt: skip
+    trainer.fit(model, dm)
+    ckpt = tmp_path / "walker.ckpt"
+    trainer.save_checkpoint(ckpt)
+    path = tmp_path / "line.json"
+    path.write_text(json.dumps({"points": [[0, 0], [2.0, 0]], "speed": 1.0}))  # 2 m at 1 m/s
+    out = tmp_path / "out"
+    assert main(["walk", "--ckpt", str(ckpt), "--style", "old", "--path", str(path), "--out", str(out)]) == 0
+    manifest = json.loads((out / "old_line.json").read_text())
+    assert manifest["frames"] == 61 and manifest["path_length_m"] == pytest.approx(2.0)
+    motion = read_bvh(out / "old_line.bvh")
+    assert motion.skeleton.names == read_bvh(next(disguised_folder.glob("*.bvh"))).skeleton.names
