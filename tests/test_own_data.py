@@ -82,12 +82,15 @@ def test_disguised_xia_has_native_features_contacts_and_positions(xia_dir, tmp_p
     assert agree >= 0.99 * frames
 
 
-def test_round_trip_of_disguised_files_through_convert(xia_dir, tmp_path):
-    """`convert` writes the copy's own skeleton, axes, units and root layout back, unchanged."""
+@pytest.mark.parametrize("chain", list(CHAINS))
+def test_inspect_and_convert_round_trip_on_disguised_files(xia_dir, tmp_path, capsys, chain):
+    """`inspect` reads, `convert` writes the copy's own skeleton, axes, units and root layout back."""
     for name in CLIPS[:4]:
-        copy, record = disguise.disguise(read_bvh(xia_dir / f"{name}.bvh"), disguise.DEFAULT_STEPS)
+        copy, record = disguise.disguise(read_bvh(xia_dir / f"{name}.bvh"), CHAINS[chain])
         source = tmp_path / f"{name}.bvh"
         write_bvh(source, copy, precision=9)
+        assert main(["inspect", str(source)]) == 0
+        assert f"root:      {record.names['Hips']}" in capsys.readouterr().out
         out = tmp_path / f"{name}_out.bvh"
         assert main(["convert", str(source), str(out)]) == 0
         back = read_bvh(out)
