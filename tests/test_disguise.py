@@ -27,6 +27,7 @@ from disguise import (
     xia_labels,
     z_up,
 )
+from test_datamodule import README_COUNTS  # clips per style and group, from the data README
 
 from walkdiff.motion.bvh import format_bvh, parse_bvh, read_bvh
 from walkdiff.motion.kinematics import forward_kinematics
@@ -41,17 +42,6 @@ README_CONTENTS = (
     "punch_qr punch_ql kick_l kick_r trans_jump2walk trans_walk2jump trans_punch2kick trans_walk2punch "
     "trans_run2jump"
 ).split()
-# Clips per style (walk/run/jump/punch/kick/trans), from data/README.md.
-README_COUNTS = {
-    "angry": (37, 8, 6, 12, 8, 3),
-    "childlike": (30, 9, 6, 12, 8, 3),
-    "depressed": (37, 7, 5, 12, 8, 5),
-    "neutral": (32, 12, 6, 16, 8, 6),
-    "old": (35, 10, 6, 6, 8, 5),
-    "proud": (33, 7, 5, 8, 5, 3),
-    "sexy": (30, 9, 6, 8, 8, 3),
-    "strutting": (43, 10, 3, 12, 8, 5),
-}
 GROUPS = ("walk", "run", "jump", "punch", "kick", "trans")
 
 SINGLE_STEPS = [
