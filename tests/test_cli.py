@@ -113,3 +113,18 @@ def test_cli_offers_every_sampler_generation_knows():
     from walkdiff import cli, generation
 
     assert cli.SAMPLERS == generation.SAMPLERS
+
+
+def test_convert_refuses_to_clobber_and_bad_rates(xia_dir, tmp_path, capsys):
+    source = tmp_path / "clip.bvh"
+    source.write_bytes((xia_dir / "old_07_000.bvh").read_bytes())
+    assert main(["convert", str(source), str(source), "--mirror"]) == 1
+    assert "the output is the input" in capsys.readouterr().err
+    out = tmp_path / "out.bvh"
+    out.write_text("keep me")
+    assert main(["convert", str(source), str(out)]) == 1
+    assert "--overwrite" in capsys.readouterr().err and out.read_text() == "keep me"
+    assert main(["convert", str(source), str(out), "--overwrite"]) == 0
+    for rate in ("0", "-30", "nan"):
+        assert main(["convert", str(source), str(tmp_path / "r.bvh"), "--fps", rate]) == 1
+        assert "--fps: expected a positive frame rate" in capsys.readouterr().err

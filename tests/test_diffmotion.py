@@ -157,6 +157,12 @@ def test_gesture_command_writes_bvh_on_the_full_skeleton(trained, tmp_path):
     assert len(bvhs) == 2 and (out / "b.gif").stat().st_size > 0
     motion = read_bvh(bvhs[0])
     assert motion.skeleton.num_joints == 13 and motion.num_frames == 161 and motion.fps == pytest.approx(20)
+    # A second run into the same folder refuses to replace the first's files, unless told to.
+    again = ["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "b.wav"), "--out", str(out),
+             "--streams", "2", "--seed", "4"]  # fmt: skip
+    before = bvhs[0].read_text()
+    assert main(again) == 1 and bvhs[0].read_text() == before
+    assert main([*again, "--overwrite"]) == 0 and bvhs[0].read_text() != before  # not smoothed this time
 
 
 def test_evaluate_gesture_report(trained, tmp_path):

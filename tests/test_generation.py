@@ -337,3 +337,43 @@ def test_a_checkpoint_without_planted_heights_loads_but_refuses_grounding(ckpt, 
     assert model.to_raw(x, grounded=False).shape == (1, 24, model.spec["feature_dim"])
     with pytest.raises(WalkdiffError, match="cannot be grounded: retrain it, or pass --no-ground"):
         model.to_raw(x)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "empty file"),
+        (b"not a checkpoint at all", "not a readable checkpoint"),
+        ("truncated", "not a readable checkpoint"),
+        ("evaluator", "this is a MotionEvaluator (style + content classifier) checkpoint; generator needs"),
+    ],
+)
+def test_bad_checkpoints_are_named_with_what_is_wrong(ckpt, tmp_path, capsys, content, message):
+    bad = tmp_path / "bad.ckpt"
+    if content == "truncated":
+        bad.write_bytes(ckpt.read_bytes()[:5000])
+    elif content == "evaluator":
+        checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
+        checkpoint["model_class"] = "walkdiff.models.evaluator.MotionEvaluator"
+        torch.save(checkpoint, bad)
+    else:
+        bad.write_bytes(content)
+    args = ["sample", "--ckpt", str(bad), "--style", "old", "--out", str(tmp_path / "out")]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"walkdiff: error: {bad}: ") and message in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--guidance", "nan"], "--guidance must be a finite number"),
+        (["--sampler", "ddpm", "--steps", "5"], "--steps applies to ddim and dpmpp"),
+        (["--sampler", "ddim", "--eta", "inf"], "--eta must be in [0, 1]"),
+    ],
+)
+def test_sampling_options_a_sampler_cannot_honour_are_refused(ckpt, tmp_path, capsys, options, message):
+    out = tmp_path / "out"
+    assert main(["sample", "--ckpt", str(ckpt), "--style", "old", "--out", str(out), *options]) == 1
+    assert message in capsys.readouterr().err
+    assert not out.exists(), "nothing written"

@@ -186,6 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=int, default=1, help="samples generated together (default 1)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
     p.add_argument("--ckpt", required=True, help="PathWalker checkpoint (conf/walk_xia.yaml)")
@@ -335,7 +336,8 @@ def run_command(args: argparse.Namespace) -> int:
             options["profile"] = read_config(options["profile"], "--profile")
         print(scan(**options))
     elif args.command == "evaluate":
-        from walkdiff.evaluation import checkpoint_class, evaluate
+        from walkdiff.checkpoints import checkpoint_class
+        from walkdiff.evaluation import evaluate
 
         if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
             from walkdiff.gesture import evaluate_gesture

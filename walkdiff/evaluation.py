@@ -29,6 +29,7 @@ import torch
 from torchmetrics.classification import MulticlassAccuracy
 from tqdm import tqdm
 
+from walkdiff.checkpoints import expect_class, read_checkpoint
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_json, write_text
@@ -233,33 +234,14 @@ def halves_fmd(reference: WindowSet, generator: torch.Generator) -> float:
 # ---------------------------------------------------------------- checkpoints and data
 
 
-def _load_checkpoint(path: str | Path, what: str) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise WalkdiffError(f"{what} checkpoint not found", path=path)
-    return torch.load(path, map_location="cpu", weights_only=False)
-
-
-def checkpoint_class(path: str | Path) -> str:
-    """The LightningModule class a checkpoint was saved from (older ones: LightningCLI's class path)."""
-    path = Path(path)
-    if not path.is_file():
-        raise WalkdiffError("model checkpoint not found", path=path)
-    # Memory-mapped: only the small metadata is read, not the weights (which the command loads itself).
-    checkpoint = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
-    hparams = checkpoint.get("hyper_parameters") or {}
-    return checkpoint.get("model_class") or hparams.get(
-        "_class_path", "walkdiff.models.styled_ddpm.StyledMotionDiffusion"
-    )
+EVALUATORS = ("walkdiff.models.evaluator.MotionEvaluator", "walkdiff.models.action_evaluator.ActionEvaluator")
 
 
 def load_evaluator(path: str | Path, device: str | torch.device = "cpu"):
     import importlib
 
-    # MotionEvaluator, or the class a checkpoint names (the HumanAct12 ActionEvaluator does).
-    class_path = _load_checkpoint(path, "evaluator").get(
-        "evaluator_class", "walkdiff.models.evaluator.MotionEvaluator"
-    )
+    # MotionEvaluator, or the HumanAct12 ActionEvaluator.
+    class_path = expect_class(path, EVALUATORS, "--evaluator")
     module, name = class_path.rsplit(".", 1)
     evaluator_class = getattr(importlib.import_module(module), name)
     return evaluator_class.from_trained(path, "evaluator", device)
@@ -321,12 +303,12 @@ def evaluate(
         # HumanAct12's protocol every action.
         default_contents = "walk" if scorer_model.spec["dataset"] == "xia" else "all"
         settings = data_settings(
-            _load_checkpoint(evaluator, "evaluator"), contents=contents or default_contents
+            read_checkpoint(evaluator, "evaluator", mmap=False), contents=contents or default_contents
         )
     else:
         from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
-        settings = data_settings(_load_checkpoint(ckpt, "generator"), contents=contents)
+        settings = data_settings(read_checkpoint(ckpt, "generator", mmap=False), contents=contents)
         model = StyledMotionDiffusion.load_from_checkpoint(ckpt, map_location="cpu", weights_only=False)
         model = model.to(device).eval()
         for labels in ("styles", "contents"):

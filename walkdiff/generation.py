@@ -13,6 +13,7 @@ root velocity and turning channels with the source's, so the restyled clip walks
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -56,6 +57,12 @@ class Sampling:
             raise WalkdiffError(f"--eta applies to DDIM only (dpmpp is deterministic), got {self.eta}")
         if self.steps is not None and self.steps < 1:
             raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
+        if self.sampler == "ddpm" and self.steps is not None:
+            raise WalkdiffError("--steps applies to ddim and dpmpp: ddpm always takes every trained step")
+        if not math.isfinite(self.guidance):
+            raise WalkdiffError(f"--guidance must be a finite number, got {self.guidance}")
+        if not (math.isfinite(self.eta) and 0 <= self.eta <= 1):
+            raise WalkdiffError(f"--eta must be in [0, 1], got {self.eta}")
 
     @property
     def order(self) -> int:

@@ -91,18 +91,31 @@ def write_clips(out: Path, stem: str, model, clips: list[np.ndarray], titles: li
     return files + [gif]
 
 
-def gesture(ckpt: str, audio: str, out: str, seed: int = 0, smooth: bool = False, streams: int = 1) -> dict:
+def gesture(
+    ckpt: str,
+    audio: str,
+    out: str,
+    seed: int = 0,
+    smooth: bool = False,
+    streams: int = 1,
+    overwrite: bool = False,
+) -> dict:
     """`walkdiff gesture`: BVH(s) and a GIF for a WAV file."""
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
+    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
+    stem = Path(audio).stem
+    targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+    taken = [str(p) for p in [*targets, Path(out) / f"{stem}.gif"] if p.exists()]
+    if taken and not overwrite:
+        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}; pass --overwrite to replace them")
     model = load_model(ckpt)
     samples, rate = read_wav(audio)
     mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
     start = time.perf_counter()
     clips = synthesize(model, mel, streams, seed, smooth)
     elapsed = time.perf_counter() - start
-    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
-    files = write_clips(Path(out), Path(audio).stem, model, list(clips), titles)
+    files = write_clips(Path(out), stem, model, list(clips), titles)
     return {
         "frames": len(mel),
         "seconds": len(mel) / model.spec["fps"],

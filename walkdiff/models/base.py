@@ -60,9 +60,10 @@ class MotionModule(L.LightningModule):
 
         `what` names the model in messages (e.g. "generator").
         """
+        from walkdiff.checkpoints import expect_class
+
         path = Path(path)
-        if not path.is_file():
-            raise WalkdiffError(f"{what} checkpoint not found", path=path)
+        expect_class(path, f"{cls.__module__}.{cls.__qualname__}", what)
         try:
             model = cls.load_from_checkpoint(path, map_location="cpu", weights_only=False)
         except (KeyError, RuntimeError, TypeError) as error:
