@@ -31,6 +31,7 @@ from tqdm import tqdm
 
 from walkdiff.checkpoints import expect_class, read_checkpoint
 from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.data.datasets import protocol_contents
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_json, write_text
 from walkdiff.metrics import (
@@ -299,9 +300,9 @@ def evaluate(
     scorer_model = load_evaluator(evaluator, device)
     model = None
     if real_only:
-        # The evaluator's data holds every content; the paper's protocol evaluates Xia's walking,
-        # HumanAct12's protocol every action.
-        default_contents = "walk" if scorer_model.spec["dataset"] == "xia" else "all"
+        # The evaluator's data holds every content; a dataset's protocol may score only some (Xia's:
+        # walking), any other every content.
+        default_contents = protocol_contents(scorer_model.spec["dataset"])
         settings = data_settings(
             read_checkpoint(evaluator, "evaluator", mmap=False), contents=contents or default_contents
         )

@@ -71,6 +71,13 @@ class ModuleSource:
         return self.module.load(clip)
 
 
+def protocol_contents(dataset: str) -> str:
+    """The content groups a dataset's evaluation protocol scores: its module's PROTOCOL_CONTENTS, or all."""
+    if dataset not in MODULES:
+        return "all"
+    return getattr(importlib.import_module(MODULES[dataset]), "PROTOCOL_CONTENTS", "all")
+
+
 def open_source(
     dataset: str, root: str | None = None, profile: dict | None = None, **folder_options
 ) -> MotionSource:

@@ -35,6 +35,8 @@ VAL_CLIPS_PER_GROUP = 1
 # over 72 clips at 120 fps: toes rest (< 2 units/s) or swing (20-60 units/s), with a trough at 4-6
 # units/s; the profile's rule (0.2 body heights/s, 0.02 body heights) gives 4.8 units/s and 0.48 units.
 PROFILE = {"units": 0.0254 / 0.45}
+# The published style-transfer protocol scores walking.
+PROTOCOL_CONTENTS = "walk"
 
 _NAME = re.compile(r"^(?P<style>[a-z]+)_(?P<content>\d{2})_(?P<take>\d{3})$")
 
