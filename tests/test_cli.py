@@ -128,3 +128,14 @@ def test_convert_refuses_to_clobber_and_bad_rates(xia_dir, tmp_path, capsys):
     for rate in ("0", "-30", "nan"):
         assert main(["convert", str(source), str(tmp_path / "r.bvh"), "--fps", rate]) == 1
         assert "--fps: expected a positive frame rate" in capsys.readouterr().err
+
+
+def test_a_clip_without_frames_is_named(tmp_path, capsys):
+    path = tmp_path / "empty.bvh"
+    synthetic.write_bvh(path, synthetic.walking(10))
+    text = path.read_text()
+    head = text[: text.index("MOTION")]
+    path.write_text(head + "MOTION\nFrames: 0\nFrame Time: 0.0333\n")
+    assert main(["inspect", str(path)]) == 1
+    line = head.count("\n") + 2
+    assert f"{path}:{line}: Frames: 0: expected a clip of at least one frame" in capsys.readouterr().err

@@ -377,3 +377,14 @@ def test_sampling_options_a_sampler_cannot_honour_are_refused(ckpt, tmp_path, ca
     assert main(["sample", "--ckpt", str(ckpt), "--style", "old", "--out", str(out), *options]) == 1
     assert message in capsys.readouterr().err
     assert not out.exists(), "nothing written"
+
+
+def test_outputs_in_the_way_and_missing_devices_are_named(ckpt, tmp_path, capsys):
+    in_the_way = tmp_path / "a_file"
+    in_the_way.write_text("not a folder")
+    args = ["sample", "--ckpt", str(ckpt), "--style", "old", "--num", "1", "--frames", "30", "--no-gif"]
+    assert main([*args, "--out", str(in_the_way)]) == 1
+    assert "--out: a file of that name exists" in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        assert main([*args, "--out", str(tmp_path / "out"), "--device", "cuda"]) == 1
+        assert "--device cuda: this torch build sees no CUDA GPU" in capsys.readouterr().err

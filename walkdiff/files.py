@@ -26,6 +26,18 @@ def write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
     return path
 
 
+def output_folder(path: str | Path, option: str = "--out") -> Path:
+    """`path` as an output folder, or a WalkdiffError when a file of that name is in the way."""
+    from walkdiff.errors import WalkdiffError
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise WalkdiffError(
+            f"{option}: a file of that name exists; expected a folder for the outputs", path=path
+        )
+    return path
+
+
 def write_text(path: str | Path, text: str) -> Path:
     return write_atomic(path, lambda f: f.write(text.encode("utf-8")))
 

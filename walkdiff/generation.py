@@ -24,7 +24,7 @@ import torch
 
 from walkdiff.diffusion import log_snr_timesteps, respace, run_steps, step_coefficients
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_json
+from walkdiff.files import output_folder, write_json
 from walkdiff.footfix import fix_feet
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -373,7 +373,7 @@ def sample(
     model = load_generator(ckpt, device)
     style_label, label = parse_style(model, style)
     content_id = model.label_ids([content], "content")[0]
-    out = Path(out)
+    out = output_folder(out)
     names = [f"{label}_{content}_{i:03d}" for i in range(num)]
     manifest_path = out / "manifest.json"
     bvh = [out / f"{n}.bvh" for n in names]
@@ -454,7 +454,7 @@ def transfer(
     fps = model.spec["fps"]
     if abs(motion.fps - fps) > 1e-3 * fps:
         motion = resample(motion, fps)
-    out = Path(out)
+    out = output_folder(out)
     target = out / f"{input.stem}_to_{label}.bvh"
     report_path = target.with_suffix(".json")
     _check_free([target, report_path] + ([target.with_suffix(".gif")] if gif else []), overwrite)

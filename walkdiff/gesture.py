@@ -29,7 +29,7 @@ from scipy.signal import argrelmin
 
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_json
+from walkdiff.files import output_folder, write_json
 from walkdiff.metrics import Jitter
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
@@ -104,7 +104,7 @@ def gesture(
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
     titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
-    stem = Path(audio).stem
+    stem, out = Path(audio).stem, output_folder(out)
     targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
     taken = [str(p) for p in [*targets, Path(out) / f"{stem}.gif"] if p.exists()]
     if taken and not overwrite:

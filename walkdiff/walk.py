@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_atomic, write_json
+from walkdiff.files import output_folder, write_atomic, write_json
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, read_path
@@ -116,7 +116,7 @@ def walk(
     polyline = Polyline.of(metres.points / unit)  # the model walks in its data's units
     speed = speed or file_speed
     speed = None if speed is None else speed / unit
-    out = Path(out)
+    out = output_folder(out)
     stem = f"{style}_{Path(path).stem}"
     bvh = out / f"{stem}.bvh"
     if bvh.exists() and not overwrite:

@@ -60,8 +60,12 @@ class MotionModule(L.LightningModule):
 
         `what` names the model in messages (e.g. "generator").
         """
+        import torch
+
         from walkdiff.checkpoints import expect_class
 
+        if str(device).startswith("cuda") and not torch.cuda.is_available():
+            raise WalkdiffError(f"--device {device}: this torch build sees no CUDA GPU; use --device cpu")
         path = Path(path)
         expect_class(path, f"{cls.__module__}.{cls.__qualname__}", what)
         try:

@@ -195,6 +195,8 @@ def _parse_motion(
     if len(fields) != 2 or fields[0].upper() != "FRAMES:" or not fields[1].isdigit():
         raise WalkdiffError("expected 'Frames: <number of frames>' after MOTION", path=path, line=frames_line)
     num_frames = int(fields[1])
+    if num_frames == 0:
+        raise WalkdiffError("Frames: 0: expected a clip of at least one frame", path=path, line=frames_line)
 
     time_index = next(header, None)
     fields = [] if time_index is None else lines[time_index].split()
