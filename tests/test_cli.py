@@ -139,3 +139,19 @@ def test_a_clip_without_frames_is_named(tmp_path, capsys):
     assert main(["inspect", str(path)]) == 1
     line = head.count("\n") + 2
     assert f"{path}:{line}: Frames: 0: expected a clip of at least one frame" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--model.lambda_advv", "0.1"], "Option 'lambda_advv' is not accepted; see `walkdiff fit --help`"),
+        (["--trainer.max_epochs", "many"], "Parser key \"trainer.max_epochs\": Expected a <class 'int'>"),
+        (["--data.root", "/nonexistent"], "/nonexistent/xia: dataset folder not found"),
+    ],
+)
+def test_fit_errors_are_one_message_not_the_usage(args, message, capsys):
+    assert main(["fit", "--config", "conf/xia_cpu.yaml", *args]) == 1
+    # (MLflow's logger may complain about an earlier test's closed capture stream: not ours to judge.)
+    err = capsys.readouterr().err.split("--- Logging error ---")[0]
+    lines = [line for line in err.splitlines() if line.startswith("walkdiff")]
+    assert len(lines) == 1 and message in lines[0] and "usage:" not in err and "Traceback" not in err

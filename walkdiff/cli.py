@@ -64,7 +64,8 @@ def lightning_cli(args: list[str] | None) -> None:
         subclass_mode_data=True,
         save_config_callback=LogConfigToMLflow,
         save_config_kwargs={"save_to_log_dir": False},
-        parser_kwargs={"parser_mode": "omegaconf"},
+        # exit_on_error=False: a bad option or config raises, and `main` prints one message, not the usage.
+        parser_kwargs={"parser_mode": "omegaconf", "exit_on_error": False},
         args=args,
     )
 
@@ -300,11 +301,38 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as error:  # the boundary: no bare traceback for users; --debug shows it
         if debug:
             raise
-        print(
-            f"walkdiff: error: {type(error).__name__}: {error} (run again with --debug for the traceback)",
-            file=sys.stderr,
-        )
+        cause = _walkdiff_cause(error)
+        if cause is not None:  # raised while LightningCLI built a model or data module: say it plainly
+            message = str(cause)
+        elif type(error).__name__ == "ArgumentError":  # LightningCLI's option and config errors
+            message = f"{option_error(str(error))}; see `walkdiff {words[0]} --help`"
+        else:
+            message = f"{type(error).__name__}: {error} (run again with --debug for the traceback)"
+        print(f"walkdiff: error: {message}", file=sys.stderr)
         return 1
+
+
+def _walkdiff_cause(error: BaseException) -> WalkdiffError | None:
+    """The WalkdiffError an exception was raised from (jsonargparse wraps those of __init__), if any."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, WalkdiffError):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def option_error(text: str) -> str:
+    """jsonargparse's nested explanation -> 'key: the most specific problem'."""
+    lines = [line.strip(" -") for line in text.splitlines() if line.strip(" -")]
+    if not lines:
+        return text
+    specific = ("not accepted", "does not exist", "not found", "Unable to", "unexpected value", "Expected a")
+    detail = next(
+        (line for line in lines[1:] if any(s in line for s in specific) and "NoneType" not in line), None
+    )
+    return lines[0] if detail is None else f"{lines[0].rstrip(':')}: {detail}"
 
 
 def run_command(args: argparse.Namespace) -> int:
