@@ -255,3 +255,29 @@ def test_path_walker_on_disguised_xia_walks_a_path_in_metres(disguised_folder, t
     assert manifest["frames"] == 61 and manifest["path_length_m"] == pytest.approx(2.0)
     motion = read_bvh(out / "old_line.bvh")
     assert motion.skeleton.names == read_bvh(next(disguised_folder.glob("*.bvh"))).skeleton.names
+
+
+def test_a_skeleton_without_feet_or_sides_is_inspected_and_explained(tmp_path, capsys):
+    """A rig with no foot names and no left/right pairs: inspect shows it, convert says what to name."""
+    skeleton = synthetic.Skeleton(
+        ["base", "link1", "link2", "tip"], [-1, 0, 1, 2], [[0, 0, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0]],
+        [disguise.ROOT_CHANNELS, ("Zrotation",), ("Zrotation",), ("Zrotation",)],
+    )  # fmt: skip
+    frames = 20
+    rotations = np.repeat(np.eye(3)[None, None], frames, axis=0).repeat(4, axis=1)
+    positions = np.repeat(skeleton.offsets[None], frames, axis=0)
+    positions[:, 0, 0] = np.linspace(0, 1, frames)
+    path = tmp_path / "robot.bvh"
+    write_bvh(path, synthetic.Motion(skeleton, rotations, positions, 1 / 30))
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "feet:      none found" in out and "no feet found" in out and "mirroring" in out
+    assert main(["convert", str(path), str(tmp_path / "out.bvh")]) == 1
+    assert "name them in the profile (left_heel, left_toe, right_heel, right_toe)" in capsys.readouterr().err
+
+
+def test_a_root_that_stays_while_the_body_walks_is_flagged(xia_dir):
+    copy, _ = disguise.disguise(read_bvh(xia_dir / "neutral_01_000.bvh"), ("static_root",))
+    assert not any("root does not move" in n for n in SkeletonProfile.detect(copy).notes)
+    forced = SkeletonProfile.detect(copy, {"root": "Root"})  # configured on the static joint
+    assert forced.root == "Root" and any("root does not move while the body does" in n for n in forced.notes)

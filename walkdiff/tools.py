@@ -53,7 +53,7 @@ def inspect_file(path: str, profile: str | None = None) -> str:
     found = file_profile(motion, profile)
     canonical = found.to_canonical(motion)
     world = motion_world_positions(canonical)
-    contacts = foot_contacts(canonical, found.contacts)
+    contacts = foot_contacts(canonical, found.contacts) if found.feet else None
     root = canonical.root_positions
     walked = np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1).sum()
     first = ", ".join(skeleton.names[:6]) + (", ..." if skeleton.num_joints > 6 else "")
@@ -69,11 +69,15 @@ def inspect_file(path: str, profile: str | None = None) -> str:
         *found.describe(),
         f"root path: {walked:.4g} units ({walked * found.metres_per_unit:.2f} m)",
         "contacts:  "
-        + ", ".join(
-            f"{name} {ratio:.0%}"
-            for name, ratio in zip(("left heel", "left toe", "right heel", "right toe"), contacts.mean(0))
-        )
-        + " of frames",
+        + (
+            ", ".join(
+                f"{name} {ratio:.0%}"
+                for name, ratio in zip(("left heel", "left toe", "right heel", "right toe"), contacts.mean(0))
+            )
+            + " of frames"
+            if contacts is not None
+            else "none (no feet)"
+        ),
     ]
     notes = list(found.notes) + suspicious(canonical, world, found.body_height)
     lines.append("suspicious: " + ("none" if not notes else ""))

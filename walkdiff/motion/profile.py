@@ -65,6 +65,11 @@ _HEEL = re.compile(r"(foot|ankle|heel)", re.IGNORECASE)
 _TOE = re.compile(r"(toe|ball)", re.IGNORECASE)
 _NOT_FOOT = re.compile(r"(end|nub|site|index|thumb|finger|twist|roll|ik|target|pole)", re.IGNORECASE)
 
+NO_FEET = (
+    "no feet found (no joints named like feet/ankles/toes on both sides, no left/right leg chains): "
+    "contacts need them; name them in the profile (left_heel, left_toe, right_heel, right_toe)"
+)
+
 OVERRIDE_FIELDS = (
     "root", "left_heel", "left_toe", "right_heel", "right_toe", "up", "forward", "units",
     "body_height", "contact_speed", "contact_height", "mirror_pairs",
@@ -242,11 +247,7 @@ def find_feet(
         return feet, "by name", []
     legs = _leg_pair(skeleton, pairs, root)
     if legs is None:
-        raise WalkdiffError(
-            "no feet found: no joints named like feet/ankles/toes on both sides and no left/right "
-            f"leg chains (joints: {', '.join(names[:12])}{' ...' if len(names) > 12 else ''}); "
-            "name them in the profile (left_heel, left_toe, right_heel, right_toe)"
-        )
+        return {}, "not found", [NO_FEET]
     out = {}
     for side, hip in zip(("left", "right"), legs):
         chain = _chain_end(skeleton, hip)
@@ -329,10 +330,14 @@ class SkeletonProfile:
             found["feet"], notes = how, notes + feet_notes
 
         world, world_rot = _world(motion)
-        heels = [skeleton.index(feet["left_heel"]), skeleton.index(feet["right_heel"])]
+        heels = [skeleton.index(feet["left_heel"]), skeleton.index(feet["right_heel"])] if feet else []
         if overrides.get("up") is not None:
             up = _axis(overrides["up"], "profile.up")
             found["up"] = "config"
+        elif not feet:
+            up = np.array([0.0, 1.0, 0.0])
+            found["up"] = "assumed (no feet to measure it from)"
+            notes.append("up axis assumed +y: without feet it cannot be measured; set profile.up")
         else:
             rise = (world[:, root] - world[:, heels].mean(axis=1)).mean(axis=0)
             up, angle = _snap(rise, 90.0)
@@ -439,6 +444,8 @@ class SkeletonProfile:
 
     @property
     def contacts(self) -> ContactSpec:
+        if not self.feet:
+            raise WalkdiffError(f"skeleton profile: {NO_FEET}")
         f = self.feet
         return ContactSpec(
             f["left_heel"], f["left_toe"], f["right_heel"], f["right_toe"],
@@ -604,8 +611,13 @@ class SkeletonProfile:
             f"root:      {self.root}"
             + (f" (static above it, folded: {', '.join(folded)})" if folded else "")
             + f" [{self.found.get('root', '')}]",
-            f"feet:      left {f['left_heel']} / {f['left_toe']}, right {f['right_heel']} / {f['right_toe']}"
-            f" [{self.found.get('feet', '')}]",
+            (
+                f"feet:      left {f.get('left_heel')} / {f.get('left_toe')}, "
+                f"right {f.get('right_heel')} / {f.get('right_toe')}"
+                if f
+                else "feet:      none found"
+            )
+            + f" [{self.found.get('feet', '')}]",
             f"pairs:     {len(self.mirror_pairs)} left/right"
             + (f" (e.g. {self.mirror_pairs[0][0]} / {self.mirror_pairs[0][1]})" if self.mirror_pairs else "")
             + (" [mirroring possible]" if self.mirror_pairs else " [no mirroring]"),
@@ -675,7 +687,7 @@ def _detect_forward(motion, world, world_rot, root, pairs, turn, feet) -> tuple[
     the mean walking direction of the clip in the root's frame.
     """
     skeleton = motion.skeleton
-    if pairs:
+    if pairs and feet:
         rest = _rest_points(skeleton)[: skeleton.num_joints]
         heels = [skeleton.index(feet["left_heel"]), skeleton.index(feet["right_heel"])]
         # Rest positions relative to the root are in the root's own frame (every rotation is identity).
@@ -699,6 +711,8 @@ def _detect_forward(motion, world, world_rot, root, pairs, turn, feet) -> tuple[
 
 def _body_height(rest, skeleton, root, heels, feet, body) -> float:
     """Heel-to-top extent of the rest pose, turned so that the heels are under the root."""
+    if not feet:
+        return float(np.ptp(rest, axis=0).max())
     points = rest[: skeleton.num_joints]
     toes = [skeleton.index(feet["left_toe"]), skeleton.index(feet["right_toe"])]
     down = points[heels + toes].mean(axis=0) - points[root]
