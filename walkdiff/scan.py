@@ -377,7 +377,7 @@ model:
     beta_end: 0.2
     prediction: x0
     lambda_contact: 1.0
-    lambda_root: 0.1
+    lambda_root: 0.023
     lambda_adv: 0.05
     lambda_velocity: 0.5
     lambda_foot: 1.0

@@ -3,7 +3,8 @@
 Loss of the generator (the denoiser), per batch:
     L = ||target - net(x_t, t, c, s)||^2                          (target: eps, x0 or v; the paper: eps)
         + lambda_contact * w_t * ||contacts(x0_hat) - contacts(x0)||^2
-        + lambda_root    * w_t * ||root(x0_hat) - root(x0)||^2   (root integrated from velocities)
+        + lambda_root    * w_t * ||root(x0_hat) - root(x0)||^2   (root integrated from velocities;
+                                                                     in contact heights, like P below)
         + lambda_adv     * w_t * 1/2 (D(x0_hat) - 1)^2                (LSGAN)
     beyond the paper, on world joint positions P = FK(x0_hat) (the root integrated, then the skeleton):
         + lambda_velocity * w_t * ||dP(x0_hat) - dP(x0)||^2           (joint velocities)
@@ -173,9 +174,13 @@ class StyledMotionDiffusion(MotionModule):
         """Joint velocities (B, F-1, J, 3) of positions, in contact speed thresholds."""
         return torch.diff(positions, dim=1) * (self.spec["fps"] / self.contact_spec.speed_threshold)
 
+    def _in_heights(self, lengths: torch.Tensor) -> torch.Tensor:
+        """Lengths in contact heights (0.02 body heights): the same numbers in any units."""
+        return lengths / self.contact_spec.height_threshold
+
     def _pose(self, positions: torch.Tensor) -> torch.Tensor:
         """Joint positions relative to the root (B, F, J, 3), in contact heights."""
-        return (positions - positions[..., :1, :]) / self.contact_spec.height_threshold
+        return self._in_heights(positions - positions[..., :1, :])
 
     @property
     def contact_spec(self):
@@ -208,7 +213,9 @@ class StyledMotionDiffusion(MotionModule):
             "contact": (
                 weight * (raw_hat[..., contacts] - raw[..., contacts]).pow(2).mean(dim=(1, 2))
             ).mean(),
-            "root": (weight * (decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))).mean(),
+            "root": (
+                weight * self._in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
+            ).mean(),
         }
         if self.uses_positions:
             positions_hat = self._positions(raw_hat)
