@@ -156,3 +156,16 @@ def test_fit_errors_are_one_message_not_the_usage(args, message, capsys):
     lines = [line for line in err if line.startswith("walkdiff")]
     assert len(lines) == 1 and message in lines[0]
     assert not any(line.startswith("usage:") for line in err)
+
+
+def test_json_outputs_are_strict(tmp_path):
+    """Reports and manifests never hold NaN or Infinity, which strict JSON readers refuse."""
+    import json
+
+    from walkdiff.files import write_json
+
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    path = write_json(tmp_path / "r.json", {"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": 2}})
+    assert json.loads(path.read_text(), parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": 2}}

@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_json
+from walkdiff.files import strict_json, write_json
 
 
 def machine() -> dict:
@@ -30,7 +30,7 @@ def machine() -> dict:
 def report(out: str | Path, result: dict) -> None:
     """Write a benchmark's JSON (atomically) and show it."""
     write_json(out, result)
-    print(json.dumps(result, indent=2))
+    print(json.dumps(strict_json(result), indent=2))
 
 
 def bench_data(out: str, dataset: str = "xia", root: str | None = None, repeats: int = 3) -> dict:
@@ -649,4 +649,4 @@ def run(args) -> None:
     elif args.what == "walk":
         from walkdiff.walk import bench_walk
 
-        print(json.dumps(bench_walk(args.out, args.ckpt, args.evaluator, args.seed), indent=2))
+        print(json.dumps(strict_json(bench_walk(args.out, args.ckpt, args.evaluator, args.seed)), indent=2))

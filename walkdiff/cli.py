@@ -390,20 +390,22 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in report["timing"].items()))
     elif args.command in ("gesture", "evaluate-gesture"):
         from walkdiff import gesture
+        from walkdiff.files import strict_json
 
         options = vars(args).copy()
         del options["command"]
         if args.command == "gesture":
-            print(json.dumps(gesture.gesture(**options), indent=2))
+            print(json.dumps(strict_json(gesture.gesture(**options)), indent=2))
         else:
             gesture.evaluate_gesture(**options)
             print(f"wrote {args.out}/report.json")
     elif args.command == "walk":
+        from walkdiff.files import strict_json
         from walkdiff.walk import walk
 
         options = vars(args).copy()
         del options["command"]
-        print(json.dumps(walk(**options), indent=2))
+        print(json.dumps(strict_json(walk(**options)), indent=2))
     elif args.command == "distill":
         from walkdiff.distill import distill
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from collections.abc import Callable
@@ -42,8 +43,22 @@ def write_text(path: str | Path, text: str) -> Path:
     return write_atomic(path, lambda f: f.write(text.encode("utf-8")))
 
 
+def strict_json(data):
+    """`data` with every non-finite float as null: JSON has no NaN or Infinity, strict readers refuse them."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: strict_json(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [strict_json(v) for v in data]
+    return data
+
+
 def write_json(path: str | Path, data) -> Path:
-    return write_text(path, json.dumps(data, indent=2, ensure_ascii=False) + "\n")
+    """Strict JSON (non-finite numbers become null), written atomically."""
+    return write_text(
+        path, json.dumps(strict_json(data), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    )
 
 
 def read_config(path: str | Path, what: str) -> dict:
