@@ -360,7 +360,7 @@ class SkeletonProfile:
                 notes.append(f"facing direction not found: {how}")
 
         rest = _rest_points(skeleton)
-        height = _body_height(rest, skeleton, root, heels, feet, body)
+        height = _body_height(rest, skeleton, root, heels, feet)
         if overrides.get("body_height") is not None:
             height = _positive(overrides["body_height"], "profile.body_height")
             found["body_height"] = "config"
@@ -709,15 +709,12 @@ def _detect_forward(motion, world, world_rot, root, pairs, turn, feet) -> tuple[
     return forward, f"walking direction ({angle:.0f} deg off the axis)"
 
 
-def _body_height(rest, skeleton, root, heels, feet, body) -> float:
-    """Heel-to-top extent of the rest pose, turned so that the heels are under the root."""
-    if not feet:
-        return float(np.ptp(rest, axis=0).max())
+def _body_height(rest, skeleton, root, heels, feet) -> float:
+    """Extent of the rest pose (joints and End Sites) along the feet-to-root direction: the body's
+    height whatever way the rest pose is turned, T or A pose alike. Without feet: its largest extent."""
     points = rest[: skeleton.num_joints]
-    toes = [skeleton.index(feet["left_toe"]), skeleton.index(feet["right_toe"])]
-    down = points[heels + toes].mean(axis=0) - points[root]
-    if np.linalg.norm(down) < 1e-9:
+    feet_joints = heels + [skeleton.index(feet[k]) for k in ("left_toe", "right_toe")] if feet else []
+    up = points[root] - points[feet_joints].mean(axis=0) if feet_joints else np.zeros(3)
+    if np.linalg.norm(up) < 1e-9:
         return float(np.ptp(rest, axis=0).max())
-    up = -down / np.linalg.norm(down)
-    along = rest @ up
-    return float(along.max() - min(along.min(), (points[heels + toes] @ up).min()))
+    return float(np.ptp(rest @ (up / np.linalg.norm(up))))
