@@ -43,6 +43,9 @@ def lightning_cli(args: list[str] | None) -> None:
         def add_arguments_to_parser(self, parser) -> None:
             parser.link_arguments("data.spec", "model.init_args.data_spec", apply_on="instantiate")
 
+        def after_fit(self) -> None:
+            report_fit(self.trainer)
+
         def before_instantiate_classes(self) -> None:
             config = self.config[self.subcommand] if self.subcommand else self.config
             if config.trainer.strategy == "ddp":
@@ -68,6 +71,33 @@ def lightning_cli(args: list[str] | None) -> None:
         parser_kwargs={"parser_mode": "omegaconf", "exit_on_error": False},
         args=args,
     )
+
+
+def report_fit(trainer) -> None:
+    """After `fit`: where the checkpoints are, and whether max_time cut the planned epochs short.
+
+    A run stopped by time depends on the machine's speed (a busy machine trains fewer epochs), so it is
+    said on the console and tagged in the MLflow run.
+    """
+    from lightning.pytorch.callbacks import Timer
+
+    planned, done = trainer.max_epochs, trainer.current_epoch
+    timer = next((c for c in trainer.callbacks if isinstance(c, Timer)), None)
+    timed_out = timer is not None and (timer.time_remaining("train") or 0) <= 0
+    if timed_out and not (planned is not None and 0 < planned <= done):
+        message = (
+            f"max_time stopped training after epoch {done} of {planned}: on a slower or busier machine "
+            "the same command trains fewer epochs; --trainer.max_time null trains them all"
+        )
+        print(f"walkdiff: {message}", file=sys.stderr)
+        logger = trainer.logger
+        if logger is not None and hasattr(logger, "run_id") and hasattr(logger.experiment, "set_tag"):
+            logger.experiment.set_tag(
+                logger.run_id, "walkdiff.stopped_by_max_time", f"epoch {done} of {planned}"
+            )
+    for callback in trainer.checkpoint_callbacks:
+        for path in {callback.best_model_path, callback.last_model_path} - {""}:
+            print(f"walkdiff: checkpoint {path}")
 
 
 def build_parser() -> argparse.ArgumentParser:

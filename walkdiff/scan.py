@@ -299,6 +299,7 @@ trainer:
         dirpath: {_yaml(directory)}
         filename: last
         save_top_k: 1
+        save_on_train_epoch_end: true  # also when a run ends before its first validation
 model:
   class_path: walkdiff.models.evaluator.MotionEvaluator
   init_args:
@@ -360,6 +361,7 @@ trainer:
         dirpath: {_yaml(directory)}
         filename: last
         save_top_k: 1
+        save_on_train_epoch_end: true  # also when a run ends before its first validation
     - class_path: walkdiff.callbacks.samples.SampleClips
       init_args:
         every_n_epochs: 10
