@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import synthetic
@@ -149,8 +151,10 @@ def test_a_clip_without_frames_is_named(tmp_path, capsys):
         (["--data.root", "/nonexistent"], "/nonexistent/xia: dataset folder not found"),
     ],
 )
-def test_fit_errors_are_one_message_not_the_usage(args, message, capsys):
-    assert main(["fit", "--config", "conf/xia_cpu.yaml", *args]) == 1
+def test_fit_errors_are_one_message_not_the_usage(args, message, capsys, tmp_path, monkeypatch):
+    config = Path(__file__).parents[1] / "conf" / "xia_cpu.yaml"
+    monkeypatch.chdir(tmp_path)  # its mlruns/ lands here
+    assert main(["fit", "--config", str(config), *args]) == 1
     # (MLflow's logger may print a "Logging error" about an earlier test's closed capture stream.)
     err = capsys.readouterr().err.splitlines()
     lines = [line for line in err if line.startswith("walkdiff")]

@@ -87,7 +87,7 @@ def test_evaluate_real_only_writes_both_reports(setup, tmp_path, monkeypatch):
     assert main(args + ["--out", str(again)]) == 0
     assert json.loads((again / "report.json").read_text())["rows"] == report["rows"]
 
-    client = MlflowClient(tracking_uri="sqlite:///mlruns/mlflow.db")
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlruns/mlflow.db")
     (run,) = client.search_runs([client.get_experiment_by_name("eval-test").experiment_id])
     assert run.data.metrics["real_test/fmd"] == pytest.approx(report["rows"]["real test"]["fmd"]["mean"])
     assert {a.path for a in client.list_artifacts(run.info.run_id, "evaluation")} == {

@@ -26,7 +26,7 @@ def lightning_cli(args: list[str] | None) -> None:
     """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`."""
     from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
-    from walkdiff.tracking import check_tracking_uri
+    from walkdiff.tracking import absolute_uri, check_tracking_uri
 
     class LogConfigToMLflow(SaveConfigCallback):
         """MLflow's sqlite URI has no log_dir: the resolved config goes into the run instead."""
@@ -56,6 +56,7 @@ def lightning_cli(args: list[str] | None) -> None:
             logger = config.trainer.logger
             uri = getattr(getattr(logger, "init_args", None), "tracking_uri", None)
             if uri:
+                logger.init_args.tracking_uri = uri = absolute_uri(uri)
                 check_tracking_uri(uri)
 
     import lightning as L

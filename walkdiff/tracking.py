@@ -13,7 +13,18 @@ DEFAULT_ARTIFACT_ROOT = "mlruns/artifacts"
 
 
 def tracking_uri() -> str:
-    return os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_TRACKING_URI)
+    return absolute_uri(os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_TRACKING_URI))
+
+
+def absolute_uri(uri: str) -> str:
+    """A relative sqlite URI made absolute against the working directory.
+
+    MLflow keeps one database engine per URI string for the life of the process: a relative
+    `sqlite:///mlruns/mlflow.db` opened in one folder would keep writing there from any other.
+    """
+    if uri.startswith("sqlite:///") and not uri.startswith("sqlite:////"):
+        return "sqlite:///" + str(Path(uri.removeprefix("sqlite:///")).resolve())
+    return uri
 
 
 def check_tracking_uri(uri: str) -> None:
