@@ -10,6 +10,7 @@ positions must equal native Xia's.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -289,3 +290,20 @@ def test_a_root_that_stays_while_the_body_walks_is_flagged(xia_dir):
     assert not any("root does not move" in n for n in SkeletonProfile.detect(copy).notes)
     forced = SkeletonProfile.detect(copy, {"root": "Root"})  # configured on the static joint
     assert forced.root == "Root" and any("root does not move while the body does" in n for n in forced.notes)
+
+
+def test_profile_overrides_are_checked_and_shown(xia_dir):
+    from walkdiff.errors import WalkdiffError
+
+    motion = read_bvh(xia_dir / "neutral_01_000.bvh")
+    profile = SkeletonProfile.detect(motion, {"up": [0, 1, 0.2], "units": "cm", "contact_speed": 7})
+    lines = "\n".join(profile.describe())
+    assert "up (0.00, 0.98, 0.20) [config]" in lines and "units:     cm" in lines and "7 units/s" in lines
+    for overrides, message in [
+        ({"root": "Pelvis"}, "profile.root: joint 'Pelvis' not in the skeleton"),
+        ({"up": "sideways"}, "profile.up: expected one of +x"),
+        ({"units": -1}, "profile.units"),
+        ({"feet": "LeftFoot"}, "profile: unknown field(s) feet"),
+    ]:
+        with pytest.raises(WalkdiffError, match=re.escape(message)):
+            SkeletonProfile.detect(motion, overrides)

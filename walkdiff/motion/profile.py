@@ -115,7 +115,9 @@ def axis_rotation(up: tuple[float, float, float]) -> np.ndarray:
 
 
 def _axis_name(v: np.ndarray) -> str:
-    return next(name for name, a in _AXES.items() if np.allclose(a, v))
+    """'+y' for an axis, '(0.00, 0.94, 0.33)' for any other direction."""
+    name = next((name for name, a in _AXES.items() if np.allclose(a, v)), None)
+    return name or "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
 def _snap(v: np.ndarray, degrees: float) -> tuple[np.ndarray, float]:
@@ -601,12 +603,7 @@ class SkeletonProfile:
         """Lines for `inspect` and `data scan`."""
         f = self.feet
         folded = [self.skeleton.names[j] for j in _ancestors(self.skeleton, self.root_index)]
-        up = _axis_name(np.asarray(self.up))
-        forward = np.asarray(self.forward)
-        try:
-            forward_text = _axis_name(forward)
-        except StopIteration:
-            forward_text = "(" + ", ".join(f"{v:.2f}" for v in forward) + ")"
+        up, forward_text = _axis_name(np.asarray(self.up)), _axis_name(np.asarray(self.forward))
         return [
             f"root:      {self.root}"
             + (f" (static above it, folded: {', '.join(folded)})" if folded else "")
@@ -620,7 +617,7 @@ class SkeletonProfile:
             + f" [{self.found.get('feet', '')}]",
             f"pairs:     {len(self.mirror_pairs)} left/right"
             + (f" (e.g. {self.mirror_pairs[0][0]} / {self.mirror_pairs[0][1]})" if self.mirror_pairs else "")
-            + (" [mirroring possible]" if self.mirror_pairs else " [no mirroring]"),
+            + (" [mirroring possible]" if self.can_mirror else " [no mirroring]"),
             f"axes:      up {up} [{self.found.get('up', '')}], root faces local {forward_text} (canonical)"
             f" [{self.found.get('forward', '')}]",
             f"units:     {self.units}, {self.metres_per_unit:.6g} m per unit [{self.found.get('units', '')}]",
