@@ -88,3 +88,14 @@ def xia_profile(motion: Motion):
 
 # Xia's contact joints with the thresholds its profile gives (0.2 and 0.02 of its 24.1-unit height).
 XIA_CONTACTS = ContactSpec("LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase", 4.83, 0.483)
+
+
+def quiet_trainer(**overrides):
+    """A CPU Trainer for a few test steps: no logger, checkpoints, progress bar, summary or sanity check."""
+    import lightning as L
+
+    defaults = dict(
+        accelerator="cpu", logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
+    )  # fmt: skip
+    return L.Trainer(**(defaults | overrides))

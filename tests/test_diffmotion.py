@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import pytest
+import synthetic
 import torch
 from test_speech import write_take
 
@@ -46,10 +46,7 @@ def trained(tmp_path_factory) -> tuple[Path, Path]:
     torch.manual_seed(0)
     dm = SpeechDataModule(str(folder), window=40, stride=10, past=5, lookahead=8, batch_size=4)
     model = DiffMotion(dm.spec, **TINY, lr=3e-3)
-    trainer = L.Trainer(
-        accelerator="cpu", max_steps=6, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
-    )  # fmt: skip
+    trainer = synthetic.quiet_trainer(max_steps=6)
     before = model.eps_net.output.weight.detach().clone()
     trainer.fit(model, dm)
     assert not torch.equal(before, model.eps_net.output.weight), "training did not update the eps network"

@@ -308,6 +308,9 @@ def _check_real_clip(motion: Motion) -> None:
     assert _errors(equal, mirror(equal, axis="z"), axis="z").max() < 1e-9 * height
 
     errors = _errors(motion, mirror(motion))
+    print(
+        f"mirror vs reflection: mean {errors.mean() / height:.2%}, max {errors.max() / height:.2%} of height"
+    )
     assert (errors.max(axis=0) <= _residual_bound(motion.skeleton) + 1e-9 * height).all()
     assert errors.max() < 0.025 * height
     assert errors.max() <= _errors(motion, _local_mirror(motion)).max() + 1e-9 * height

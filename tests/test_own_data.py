@@ -193,7 +193,6 @@ def test_zeggs_loads_through_the_folder_dataset(zeggs_dir, tmp_path):
 
 def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatch):
     """DiffMotion on BVH + WAV takes of another skeleton: Unreal names, static root, metres, Z-up."""
-    import lightning as L
     import soundfile
     import torch
     from test_diffmotion import TINY
@@ -215,10 +214,7 @@ def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatc
     assert np.allclose(dm.profile.up, [0, 0, 1])
     torch.manual_seed(0)
     model = DiffMotion(dm.spec, **TINY)
-    trainer = L.Trainer(
-        accelerator="cpu", max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
-    )  # fmt: skip
+    trainer = synthetic.quiet_trainer(max_steps=2)
     trainer.fit(model, dm)
     ckpt = tmp_path / "gesture.ckpt"
     trainer.save_checkpoint(ckpt)
@@ -236,7 +232,6 @@ def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatc
 
 
 def test_path_walker_on_disguised_xia_walks_a_path_in_metres(disguised_folder, tmp_path, monkeypatch):
-    import lightning as L
     import torch
     from test_walk import TINY
 
@@ -249,10 +244,7 @@ def test_path_walker_on_disguised_xia_walks_a_path_in_metres(disguised_folder, t
     )  # fmt: skip
     torch.manual_seed(0)
     model = PathWalker(dm.spec, **TINY)
-    trainer = L.Trainer(
-        accelerator="cpu", max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
-    )  # fmt: skip
+    trainer = synthetic.quiet_trainer(max_steps=2)
     trainer.fit(model, dm)
     ckpt = tmp_path / "walker.ckpt"
     trainer.save_checkpoint(ckpt)

@@ -103,14 +103,13 @@ def test_left_and_right_limbs_are_coloured_by_name(tmp_path):
         assert mask(plain[0], color).sum() == 0
 
 
-@pytest.mark.parametrize(
-    ("name", "side"),
-    [("LeftUpLeg", "L"), ("LHipJoint", "L"), ("l_hip", "L"), ("hip.L", "L"), ("RThumb", "R"),
-     ("RightForeArm", "R"), ("hip_r", "R"), ("LowerBack", None), ("Root", None), ("Hips", None),
-     ("Head", None)],
-)  # fmt: skip
-def test_joint_side_from_name(name, side):
-    assert render._side(name) == {"L": render.LEFT, "R": render.RIGHT, None: None}[side]
+def test_joint_sides_from_the_mirror_pairs_of_the_names():
+    names = ["LeftUpLeg", "RightUpLeg", "LHipJoint", "RHipJoint", "l_hip", "r_hip", "hip.L", "hip.R",
+             "LThumb", "RThumb", "RightForeArm", "LeftForeArm", "hip_r", "hip_l", "Bip01 L Foot",
+             "Bip01 R Foot", "LowerBack", "Root", "Hips", "Head", "LeftEye"]  # fmt: skip
+    sides = "LRLRLRLRLRRLRLLR" + "....."  # LeftEye has no partner: the centre colour
+    expected = [{"L": render.LEFT, "R": render.RIGHT, ".": None}[s] for s in sides]
+    assert render._sides(names) == expected
 
 
 def test_upright_framed_and_equal_scale(tmp_path):

@@ -6,7 +6,6 @@ import json
 import math
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import pytest
 import synthetic
@@ -151,10 +150,7 @@ def trained(synthetic_root) -> Path:
     )
     torch.manual_seed(0)
     model = PathWalker(dm.spec, **TINY, lr=3e-3)
-    trainer = L.Trainer(
-        accelerator="cpu", max_steps=4, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
-    )  # fmt: skip
+    trainer = synthetic.quiet_trainer(max_steps=4)
     before = model.eps_net.output.weight.detach().clone()
     trainer.fit(model, dm)
     assert not torch.equal(before, model.eps_net.output.weight)

@@ -9,7 +9,6 @@ straight into a palette ("P") image, which needs no colour quantisation and keep
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_atomic
+from walkdiff.motion.mirror import name_pairs
 
 Color = tuple[int, int, int]
 
@@ -163,20 +163,13 @@ def _check_clips(
     return clips, parents
 
 
-def _side(name: str) -> Color | None:
-    """Limb colour from a joint name, None for the body's centre line.
-
-    "LeftUpLeg", "LHipJoint", "l_hip" and "hip.L" are left (and mirrored for right), but not "LowerBack".
-    """
-    lower = name.lower()
-    for word, letter, color in (("left", "L", LEFT), ("right", "R", RIGHT)):
-        if (
-            word in lower
-            or re.match(rf"{letter}[A-Z_.]", name)
-            or re.search(rf"(^|[_.]){letter.lower()}([_.]|$)", lower)
-        ):
-            return color
-    return None
+def _sides(names: Sequence[str]) -> list[Color | None]:
+    """Limb colour per joint: left and right as the skeleton's mirror pairs are found by name (every
+    convention `walkdiff.motion.mirror` knows), None for the centre line and unpaired joints."""
+    sides: list[Color | None] = [None] * len(names)
+    for left, right in name_pairs(names):
+        sides[left], sides[right] = LEFT, RIGHT
+    return sides
 
 
 def _project(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -250,7 +243,7 @@ class _Scene:
         self.palette: dict[Color, int] = {BACKGROUND: 0}  # index 0: new images start as background
         self.grid_ink = self.ink(GRID)
         self.text_ink = self.ink(TEXT)
-        sides = [None] * len(parents) if names is None else [_side(n) for n in names]
+        sides = [None] * len(parents) if names is None else _sides(names)
         self.clips = []
         for i, (clip, rel, (_, _, depth)) in enumerate(zip(clips, relative, screen, strict=True)):
             body = BODY if colors is None else tuple(int(c) for c in colors[i])

@@ -252,6 +252,35 @@ def _data_section(data: dict) -> str:
     return f"data:\n  class_path: walkdiff.data.datamodule.MotionDataModule\n  init_args:\n{body}"
 
 
+def _trainer(directory: str, max_epochs: int, max_time: str, validate_every: int | None = None) -> str:
+    """The trainer section both configs share (CPU, 32-bit), up to the logger."""
+    every = f"  check_val_every_n_epoch: {validate_every}\n" if validate_every else ""
+    return f"""\
+seed_everything: 0
+trainer:
+  accelerator: cpu
+  devices: 1
+  precision: 32-true
+  max_epochs: {max_epochs}
+  max_time: "{max_time}"
+{every}  log_every_n_steps: 20
+  num_sanity_val_steps: 0
+  default_root_dir: {_yaml(directory)}
+"""
+
+
+def _last_checkpoint(directory: str) -> str:
+    """The checkpoint without a monitor: last.ckpt, every epoch."""
+    return f"""\
+    - class_path: lightning.pytorch.callbacks.ModelCheckpoint
+      init_args:
+        dirpath: {_yaml(directory)}
+        filename: last
+        save_top_k: 1
+        save_on_train_epoch_end: true  # also when a run ends before its first validation
+"""
+
+
 def _logger(name: str, run: str, log_model: bool) -> str:
     return f"""\
   logger:
@@ -272,17 +301,8 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
 # included when the skeleton has left/right pairs. Written by `walkdiff data scan`; sized for CPU.
 {summary}
 # Train it first: walkdiff fit --config <this file>
-seed_everything: 0
-trainer:
-  accelerator: cpu
-  devices: 1
-  precision: 32-true
-  max_epochs: 40
-  max_time: "00:00:12:00"
-  log_every_n_steps: 20
-  num_sanity_val_steps: 0
-  default_root_dir: {_yaml(directory)}
 """
+        + _trainer(directory, 40, "00:00:12:00")
         + _logger(name, f"evaluator_{name}", log_model=False)
         + f"""\
   callbacks:
@@ -293,13 +313,10 @@ trainer:
         monitor: val/style_acc
         mode: max
         save_top_k: 1
-    # A checkpoint without monitor keeps the latest epoch as last.ckpt (the generator's metrics use it).
-    - class_path: lightning.pytorch.callbacks.ModelCheckpoint
-      init_args:
-        dirpath: {_yaml(directory)}
-        filename: last
-        save_top_k: 1
-        save_on_train_epoch_end: true  # also when a run ends before its first validation
+    # The latest epoch as last.ckpt: the generator's metrics use it.
+"""
+        + _last_checkpoint(directory)
+        + """\
 model:
   class_path: walkdiff.models.evaluator.MotionEvaluator
   init_args:
@@ -326,18 +343,8 @@ def _generator_config(name: str, folder: Path, summary: str, data: dict, content
 {summary}
 # Train the evaluator first (walkdiff fit --config evaluator_{name}.yaml, beside this file): the
 # metrics callback reads its last checkpoint.
-seed_everything: 0
-trainer:
-  accelerator: cpu
-  devices: 1
-  precision: 32-true
-  max_epochs: 140
-  max_time: "00:00:55:00"
-  check_val_every_n_epoch: 5
-  log_every_n_steps: 20
-  num_sanity_val_steps: 0
-  default_root_dir: {_yaml(directory)}
 """
+        + _trainer(directory, 140, "00:00:55:00", validate_every=5)
         + _logger(name, name, log_model=True)
         + f"""\
   callbacks:
@@ -356,12 +363,9 @@ trainer:
         monitor: metrics/fmd
         mode: min
         save_top_k: 1
-    - class_path: lightning.pytorch.callbacks.ModelCheckpoint
-      init_args:
-        dirpath: {_yaml(directory)}
-        filename: last
-        save_top_k: 1
-        save_on_train_epoch_end: true  # also when a run ends before its first validation
+"""
+        + _last_checkpoint(directory)
+        + f"""\
     - class_path: walkdiff.callbacks.samples.SampleClips
       init_args:
         every_n_epochs: 10

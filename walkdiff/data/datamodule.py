@@ -203,6 +203,7 @@ class MotionDataModule(WindowLoaders):
             self.processed = preprocess(
                 self.source,
                 self.clips,
+                self.profile,  # found once, from the first clip: the spec linked into the model has it
                 fps=h.fps,
                 mirror=h.mirror,
                 cache_dir=Path(h.cache_dir),

@@ -88,6 +88,7 @@ def _process_clip(source: MotionSource, profile: dict, clip: ClipInfo, fps: floa
 def preprocess(
     source: MotionSource,
     clips: list[ClipInfo],
+    profile: SkeletonProfile,
     *,
     fps: float,
     mirror: bool,
@@ -98,7 +99,6 @@ def preprocess(
 ) -> ProcessedClips:
     if on_error not in ("fail", "skip"):
         raise WalkdiffError(f"data.on_error: expected 'fail' or 'skip', got {on_error!r}")
-    profile = detect_profile(source, clips)
     if mirror and not profile.can_mirror:
         raise WalkdiffError(
             "data.mirror: this skeleton cannot be mirrored (no left/right joint pairs found by name); "

@@ -71,10 +71,15 @@ _SIDE_PATTERNS = [
 
 def find_mirror_pairs(skeleton: Skeleton) -> list[tuple[int, int]]:
     """(left, right) joint index pairs found by name (see `_SIDE_PATTERNS` for the conventions)."""
+    return name_pairs(skeleton.names)
+
+
+def name_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
+    """(left, right) index pairs of `names` whose partner is spelled there (see `_SIDE_PATTERNS`)."""
     pairs: list[tuple[int, int]] = []
     used: set[int] = set()
-    index = {name: j for j, name in enumerate(skeleton.names)}
-    for left, name in enumerate(skeleton.names):
+    index = {name: j for j, name in enumerate(names)}
+    for left, name in enumerate(names):
         if left in used:
             continue
         for pattern, replacement in _SIDE_PATTERNS:
