@@ -1,17 +1,19 @@
-"""The motion evaluator: shapes, raw-feature contract, training on real Xia windows, checkpoint round trip."""
+"""The motion evaluator: shapes, position contract, training on real Xia windows, checkpoint round trip."""
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import lightning as L
 import pytest
 import torch
+from synthetic import xia_profile
 
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.evaluator import MotionEvaluator
+from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.representation import FeatureLayout
 from walkdiff.spec import DataSpec
 
@@ -68,31 +70,44 @@ def tiny_trainer(**kwargs) -> L.Trainer:
     return L.Trainer(**(defaults | kwargs))
 
 
-def test_shapes_for_any_window_length():
-    model = MotionEvaluator(SPEC, **TINY)
+@pytest.fixture(scope="module")
+def model(xia_dir):
+    """An untrained evaluator on Xia's skeleton (31 joints), as a checkpoint would hold it."""
+    profile = xia_profile(read_bvh(sorted(xia_dir.glob("*.bvh"))[0]))
+    spec = replace(SPEC, num_joints=31, feature_dim=FeatureLayout(31).dim)
+    evaluator = MotionEvaluator(asdict(spec), **TINY)  # the dict form, as stored in checkpoints
+    evaluator.profile = profile
+    return evaluator
+
+
+def test_shapes_for_any_window_length(model):
     for frames in (16, 40, 3):
-        raw = torch.randn(5, frames, SPEC.feature_dim)
-        assert model.features(raw).shape == (5, 8)
-        style, content = model.classify(raw)
+        positions = 20 * torch.randn(5, frames, 31, 3)
+        assert model.features(positions).shape == (5, 8)
+        style, content = model.classify(positions)
         assert style.shape == (5, 3) and content.shape == (5, 2)
 
 
-def test_inputs_are_raw_features_normalised_by_the_evaluator():
-    model = MotionEvaluator(asdict(SPEC), **TINY)  # the dict form, as stored in checkpoints
-    model.normalizer.mean.fill_(3.0)
-    model.normalizer.std.fill_(2.0)
-    normalised = torch.randn(4, 16, SPEC.feature_dim)
-    raw = normalised * 2.0 + 3.0
-    expected, _, _ = model.eval()(normalised)
-    torch.testing.assert_close(model.features(raw), expected)
+def test_inputs_are_body_features_normalised_by_the_evaluator(model):
+    positions = 20 * torch.randn(4, 16, 31, 3)
+    model.feature_normalizer.mean.fill_(3.0)
+    model.feature_normalizer.std.fill_(2.0)
+    try:
+        normalised = (model.body.features(positions, SPEC.fps) - 3.0) / 2.0
+        expected, _, _ = model.eval()(normalised.float())
+        torch.testing.assert_close(model.features(positions), expected)
+    finally:
+        model.feature_normalizer.mean.fill_(0.0)
+        model.feature_normalizer.std.fill_(1.0)
 
 
-def test_bad_input_and_missing_spec_raise():
-    model = MotionEvaluator(SPEC, **TINY)
-    with pytest.raises(WalkdiffError, match=r"\(B, F, 26\)"):
-        model.features(torch.randn(2, 16, 25))
+def test_bad_input_and_missing_spec_raise(model):
+    with pytest.raises(WalkdiffError, match=r"\(B, frames, 31, 3\)"):
+        model.features(torch.randn(2, 16, 30, 3))
     with pytest.raises(WalkdiffError, match="data_spec"):
         MotionEvaluator(None)
+    with pytest.raises(WalkdiffError, match="no skeleton profile"):
+        MotionEvaluator(SPEC, **TINY).features(torch.randn(2, 16, 3, 3))
 
 
 def test_trains_on_real_windows_and_round_trips(xia_dir, tmp_path):
@@ -112,20 +127,24 @@ def test_trains_on_real_windows_and_round_trips(xia_dir, tmp_path):
     metrics = trainer.callback_metrics
     assert {"train/style_acc", "train/content_acc", "val/style_acc", "val/content_acc"} <= set(metrics)
     assert float(metrics["train/loss_epoch"]) < 0.8 * first
-    # The evaluator took the data's normaliser and skeleton, and recognises its training windows.
+    # The evaluator took the data's normaliser and skeleton, fitted its own to the body features of the
+    # training clips, and recognises its training windows.
     torch.testing.assert_close(model.normalizer.std, dm.normalizer.std)
+    assert model.feature_normalizer.std.shape == (6 * 31 + 1,) and (model.feature_normalizer.std != 1).any()
     assert model.skeleton.same_hierarchy(dm.skeleton)
     assert float(metrics["train/content_acc"]) > 0.6
 
     raw = torch.from_numpy(dm.split_features("test")[0][2][:16]).unsqueeze(0)
-    before = model.features(raw)
+    positions = model.raw_positions(raw.double()).float()
+    before = model.features(positions)
     path = tmp_path / "evaluator.ckpt"
     trainer.save_checkpoint(path)
     loaded = MotionEvaluator.load_from_checkpoint(path, weights_only=False)
     torch.testing.assert_close(loaded.normalizer.mean, dm.normalizer.mean, rtol=0, atol=0)
+    torch.testing.assert_close(loaded.feature_normalizer.std, model.feature_normalizer.std, rtol=0, atol=0)
     assert loaded.skeleton.names == dm.skeleton.names
     assert loaded.spec == model.spec
-    torch.testing.assert_close(loaded.features(raw), before, rtol=0, atol=0)
+    torch.testing.assert_close(loaded.features(positions), before, rtol=0, atol=0)
 
     result = tiny_trainer().test(loaded, dm, verbose=False)[0]
     assert 0.0 <= result["test/style_acc"] <= 1.0 and 0.0 <= result["test/content_acc"] <= 1.0

@@ -64,18 +64,23 @@ METRICS = {
 
 @dataclass
 class WindowSet:
-    """Raw feature windows with labels and, once embedded, the evaluator's outputs."""
+    """Motion windows with labels and, once embedded, their joint positions and the evaluator's outputs.
 
-    raw: torch.Tensor  # (N, W, D) features in data units
+    A generator's windows come as raw features (`raw`), turned into positions by `MotionScorer.embed`;
+    windows read from files (`walkdiff score`) come as positions directly.
+    """
+
+    raw: torch.Tensor | None  # (N, W, D) features in data units, or None
     style: torch.Tensor  # (N,) style ids (true or requested)
     content: torch.Tensor  # (N,) content group ids
     clip: torch.Tensor  # (N,) index of the source clip; -1 for generated windows
+    positions: torch.Tensor | None = None  # (N, W, J, 3) world joint positions, canonical axes
     features: torch.Tensor | None = None  # (N, E) evaluator features
     style_logits: torch.Tensor | None = None
     content_logits: torch.Tensor | None = None
 
     def __len__(self) -> int:
-        return self.raw.shape[0]
+        return self.style.shape[0]
 
     def take(self, index: torch.Tensor) -> WindowSet:
         def pick(x):
@@ -104,15 +109,23 @@ def window_set(clips: list, window: int, stride: int = 1) -> WindowSet:
 
 
 class MotionScorer:
-    """Scores sets of raw windows with an evaluator, against a fixed real reference set."""
+    """Scores sets of windows with an evaluator, against a fixed real reference set.
+
+    `skeleton` is the skeleton of the raw feature windows it is given (a generator's); it must have the
+    evaluator's joints.
+    """
 
     def __init__(self, evaluator, skeleton: Skeleton, fps: float, batch_size: int = 512):
         self.evaluator = evaluator.eval()
         self.spec = evaluator.spec
         self.fps = fps
         self.batch_size = batch_size
+        names = list(evaluator.body.names)
+        if list(skeleton.names) != names:
+            differ = sorted(set(skeleton.names) ^ set(names)) or ["the same joints in another order"]
+            raise WalkdiffError(f"the motion's skeleton is not the evaluator's ({', '.join(differ[:8])})")
         contacts = evaluator.profile.contacts
-        self.foot_joints = [skeleton.index(name) for name in contacts.joints]
+        self.foot_joints = [names.index(name) for name in contacts.joints]
         self.speed_threshold = contacts.speed_threshold
         self.height_threshold = contacts.height_threshold
         self.floor: torch.Tensor | None = None  # per foot joint, from the real reference set
@@ -121,22 +134,31 @@ class MotionScorer:
         self.fmd_real: FrechetMotionDistance | None = None
 
     def embed(self, windows: WindowSet) -> WindowSet:
+        """The windows with positions (from `raw` when given) and the evaluator's outputs."""
+        positions = windows.positions if windows.raw is None else self.positions(windows.raw)
         outputs = [
-            self.evaluator.embed_and_classify(windows.raw[i : i + self.batch_size])
+            self.evaluator.embed_and_classify(positions[i : i + self.batch_size])
             for i in range(0, len(windows), self.batch_size)
         ]
         features, style, content = (torch.cat([o[k] for o in outputs]).float().cpu() for k in range(3))
-        return replace(windows, features=features, style_logits=style, content_logits=content)
+        return replace(
+            windows, positions=positions, features=features, style_logits=style, content_logits=content
+        )
 
     def set_reference(self, reference: WindowSet) -> None:
         """The real statistics every FMD of `score` is measured against, and the real floor height."""
         self.fmd_real = fmd_metric(reference.features)
-        feet = self.positions(reference.raw)[..., self.foot_joints, 1]
-        self.floor = torch.quantile(feet.flatten(0, 1).float(), 0.05, dim=0).double()
+        feet = reference.positions[..., self.foot_joints, 1]
+        self.floor = torch.quantile(feet.flatten(0, 1).double(), 0.05, dim=0)
 
     def positions(self, raw: torch.Tensor) -> torch.Tensor:
-        # float64 FK: jitter multiplies position errors by fps^3.
-        return features_to_positions(raw.double(), self.offsets, self.parents)
+        """(N, W, J, 3) float32 positions of raw windows, each starting at the origin (float64 FK in
+        chunks: jitter multiplies position errors by fps^3)."""
+        chunks = [
+            features_to_positions(raw[i : i + self.batch_size].double(), self.offsets, self.parents).float()
+            for i in range(0, raw.shape[0], self.batch_size)
+        ]
+        return torch.cat(chunks) if chunks else torch.zeros(0, raw.shape[1], len(self.parents), 3)
 
     def ground_contacts(self, positions: torch.Tensor) -> torch.Tensor:
         """A foot joint touches the ground when it is within the contact height of the real floor.
@@ -144,7 +166,7 @@ class MotionScorer:
         Decided from the geometry, not from the predicted contact labels, so real and generated motion
         are judged alike (with labels, real data would have no skating by construction).
         """
-        height = positions[..., self.foot_joints, 1] - self.floor
+        height = positions[..., self.foot_joints, 1].double() - self.floor
         return height < self.height_threshold
 
     def score(self, windows: WindowSet, seed: int = 0) -> dict[str, float]:
@@ -172,7 +194,7 @@ class MotionScorer:
         multimodality.update(windows.features, windows.style if styled else windows.content)
         values["multimodality"] = multimodality.compute()
 
-        positions = self.positions(windows.raw)
+        positions = windows.positions.double()
         skating = FootSkating(self.foot_joints, self.fps, self.speed_threshold)
         skating.update(positions, self.ground_contacts(positions))
         values |= skating.compute()

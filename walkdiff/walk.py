@@ -176,7 +176,8 @@ def style_accuracy(scorer, raws: list[np.ndarray], styles: list[int], window: in
         for begin in range(0, raw.shape[0] - window + 1, window):
             windows.append(raw[begin : begin + window])
             labels.append(style)
-    logits = scorer.embed_and_classify(torch.from_numpy(np.stack(windows)).float())[1]
+    positions = scorer.raw_positions(torch.from_numpy(np.stack(windows)).double()).float()
+    logits = scorer.classify(positions)[0]
     return float((logits.argmax(-1).cpu() == torch.tensor(labels)).double().mean())
 
 

@@ -1,13 +1,13 @@
-"""`MotionEvaluator`: a style + content classifier whose penultimate features define the FMD space.
+"""The evaluators of the metrics: recognition networks over convention-free body features.
 
 The protocol of Action2Motion / ACTOR / MDM scores generated motion with a recognition network trained on
 real data: its accuracy on generated clips says whether the requested labels show, and the statistics of
-its penultimate features give the Fréchet motion distance, diversity and multimodality.
+its penultimate features give the Fréchet motion distance, KID, diversity and multimodality.
 
-The network is a stack of temporal convolutions over the frames of a window, averaged over time: it takes
-windows of any length, so generators with other window sizes can be scored. `features` and `classify`
-take RAW features (data units): every generator normalises its data its own way, the evaluator applies
-its own normaliser, which it keeps in its state dict.
+Evaluators read WORLD JOINT POSITIONS (B, F, J, 3) of the body in canonical axes (Y up, file units), never
+rotations: motion made by any pipeline, with any rotation convention or root layout, is judged by where
+its joints go (`walkdiff.motion.body_features`). Training batches (a generator's feature windows) are
+turned into positions by forward kinematics on the training skeleton.
 """
 
 from __future__ import annotations
@@ -21,6 +21,8 @@ from torchmetrics.classification import MulticlassAccuracy
 
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.base import MotionModule
+from walkdiff.motion.body_features import BodyFrame
+from walkdiff.motion.representation import Normalizer, features_to_positions
 from walkdiff.spec import DataSpec
 
 
@@ -37,8 +39,67 @@ class ConvBlock(nn.Module):
         return x + self.dropout(F.gelu(self.norm(self.conv(x))))
 
 
-class MotionEvaluator(MotionModule):
-    """Recognises style and content of motion windows (B, F, D).
+class PositionEvaluator(MotionModule):
+    """What every evaluator shares: positions in, (features, style logits, content logits) out."""
+
+    _body: BodyFrame | None = None
+
+    @property
+    def body(self) -> BodyFrame:
+        """Joint names, heading pairs and body height of the evaluator's skeleton."""
+        if self._body is None:
+            if self.profile is None:
+                raise WalkdiffError("the evaluator has no skeleton profile: train it with `walkdiff fit`")
+            self._body = BodyFrame.of(self.profile)
+        return self._body
+
+    def raw_positions(self, raw: torch.Tensor) -> torch.Tensor:
+        """Feature windows in data units (B, F, D) on the training skeleton -> positions (B, F, J, 3)."""
+        skeleton = self.skeleton
+        offsets = torch.as_tensor(skeleton.offsets, dtype=raw.dtype, device=raw.device)
+        return features_to_positions(raw, offsets, skeleton.parents)
+
+    def _checked(self, positions: torch.Tensor) -> torch.Tensor:
+        j = self.spec["num_joints"]
+        if positions.ndim != 4 or positions.shape[2:] != (j, 3) or positions.shape[1] < 1:
+            raise WalkdiffError(
+                f"the evaluator expects joint positions (B, frames, {j}, 3), got {tuple(positions.shape)}"
+            )
+        return positions.to(device=self.device, dtype=self.dtype)
+
+    @torch.no_grad()
+    def embed_and_classify(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(features (B, E), style logits, content logits) of world joint positions (B, F, J, 3)."""
+        return self.eval()(self.inputs(self._checked(positions)))
+
+    def features(self, positions: torch.Tensor) -> torch.Tensor:
+        return self.embed_and_classify(positions)[0]
+
+    def classify(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.embed_and_classify(positions)[1:]
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        return self._step(batch, "train")
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        self._step(batch, "val")
+
+    def test_step(self, batch: dict, batch_idx: int) -> None:
+        self._step(batch, "test")
+
+    def configure_optimizers(self):
+        """AdamW with a cosine decay over the planned steps."""
+        h = self.hparams
+        optimizer = torch.optim.AdamW(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
+        total = self.trainer.estimated_stepping_batches
+        if not math.isfinite(total):  # training bounded by time only: keep the learning rate
+            return optimizer
+        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=max(1, int(total)))
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+
+class MotionEvaluator(PositionEvaluator):
+    """Recognises style and content of motion from its body features (`BodyFrame.features`).
 
     Args:
         data_spec: linked from the data module by `walkdiff fit` (a DataSpec, or its dict form).
@@ -73,7 +134,9 @@ class MotionEvaluator(MotionModule):
         self.hparams["data_spec"] = spec = self.spec
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
 
-        self.input = nn.Conv1d(spec["feature_dim"], hidden, kernel, padding=kernel // 2)
+        body_dim = 6 * spec["num_joints"] + 1  # BodyFrame.dim
+        self.feature_normalizer = Normalizer(body_dim)
+        self.input = nn.Conv1d(body_dim, hidden, kernel, padding=kernel // 2)
         self.blocks = nn.Sequential(*[ConvBlock(hidden, kernel, dropout) for _ in range(blocks)])
         self.embed = nn.Linear(hidden, embed_dim)
         self.head_dropout = nn.Dropout(dropout)
@@ -88,41 +151,34 @@ class MotionEvaluator(MotionModule):
 
     # ---------------------------------------------------------------- network
 
+    def inputs(self, positions: torch.Tensor) -> torch.Tensor:
+        """Positions (B, F, J, 3) -> normalised body features (B, F, 6J + 1)."""
+        features = self.body.features(positions, self.spec["fps"])
+        return self.feature_normalizer.normalize(features.to(self.dtype))
+
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Normalised windows (B, F, D) -> (features (B, embed_dim), style logits, content logits)."""
+        """Normalised body features (B, F, 6J + 1) -> (features (B, embed_dim), style, content logits)."""
         h = self.blocks(F.gelu(self.input(x.transpose(1, 2))))
         features = self.embed(h.mean(dim=2))
         hidden = self.head_dropout(F.gelu(features))
         return features, self.style_head(hidden), self.content_head(hidden)
 
-    def _normalised(self, raw: torch.Tensor) -> torch.Tensor:
-        d = self.spec["feature_dim"]
-        if raw.ndim != 3 or raw.shape[-1] != d or raw.shape[1] < 1:
-            raise WalkdiffError(
-                f"the evaluator expects raw feature windows (B, F, {d}), got {tuple(raw.shape)}"
-            )
-        return self.normalizer.normalize(raw.to(device=self.device, dtype=self.dtype))
-
-    @torch.no_grad()
-    def features(self, raw: torch.Tensor) -> torch.Tensor:
-        """Penultimate features (B, embed_dim) of raw (data-unit) feature windows (B, F, D)."""
-        return self.eval()(self._normalised(raw))[0]
-
-    @torch.no_grad()
-    def classify(self, raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(style logits, content logits) of raw (data-unit) feature windows (B, F, D)."""
-        _, style, content = self.eval()(self._normalised(raw))
-        return style, content
-
-    @torch.no_grad()
-    def embed_and_classify(self, raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Features and both logits in one pass: what the evaluation protocol needs."""
-        return self.eval()(self._normalised(raw))
-
     # ---------------------------------------------------------------- training
 
+    def setup(self, stage: str) -> None:
+        super().setup(stage)
+        datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if stage == "fit" and datamodule is not None:  # a resumed run loads them back from its checkpoint
+            clips = datamodule.split_features("train", mirrored=datamodule.hparams.mirror)
+            features = [
+                self.body.features(self.raw_positions(torch.tensor(f, dtype=torch.float64)), self.spec["fps"])
+                for _, _, f in clips
+            ]
+            statistics = Normalizer.fit([f.numpy() for f in features])
+            self.feature_normalizer.load_state_dict(statistics.state_dict())
+
     def _step(self, batch: dict, split: str) -> torch.Tensor:
-        x = batch["features"]
+        x = self.inputs(self.raw_positions(self.normalizer.denormalize(batch["features"])))
         if split == "train" and self.hparams.input_noise > 0:
             x = x + self.hparams.input_noise * torch.randn_like(x)
         _, style_logits, content_logits = self(x)
@@ -150,21 +206,3 @@ class MotionEvaluator(MotionModule):
             batch_size=batch_size,
         )
         return loss
-
-    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        return self._step(batch, "train")
-
-    def validation_step(self, batch: dict, batch_idx: int) -> None:
-        self._step(batch, "val")
-
-    def test_step(self, batch: dict, batch_idx: int) -> None:
-        self._step(batch, "test")
-
-    def configure_optimizers(self):
-        h = self.hparams
-        optimizer = torch.optim.AdamW(self.parameters(), lr=h.lr, weight_decay=h.weight_decay)
-        total = self.trainer.estimated_stepping_batches
-        if not math.isfinite(total):  # training bounded by time only: keep the learning rate
-            return optimizer
-        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=max(1, int(total)))
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}

@@ -41,6 +41,7 @@ from walkdiff.motion.skeleton import Motion, Skeleton, skeleton_from_dict, skele
 CONTACT_SPEED = 0.2  # body heights per second
 CONTACT_HEIGHT = 0.02  # body heights above the foot's own floor
 ASSUMED_HEIGHT_M = 1.7  # when the units cannot be told from the body height
+BONE_TOLERANCE = 0.01  # body heights: a bone longer or shorter than this is another skeleton
 
 # Body heights (file units) of a human in each unit, and metres per unit.
 _UNITS = (
@@ -501,17 +502,51 @@ class SkeletonProfile:
         ]  # fmt: skip
         parts = []
         if missing:
-            parts.append(f"missing {', '.join(missing[:8])}{' ...' if len(missing) > 8 else ''}")
+            parts.append(f"missing {_listed(missing)}")
         if extra:
-            parts.append(f"extra {', '.join(extra[:8])}{' ...' if len(extra) > 8 else ''}")
+            parts.append(f"extra {_listed(extra)}")
         if moved:
-            parts.append(f"other parent for {', '.join(moved[:8])}")
+            parts.append(f"other parent for {_listed(moved)}")
         if not parts:
             parts.append("same joints in another order")
         raise WalkdiffError(
             f"another skeleton than the dataset's ({len(theirs)} joints vs {len(mine)}): {'; '.join(parts)}",
             path=path,
         )
+
+    def body_positions(self, motion: Motion, path=None) -> np.ndarray:
+        """World positions (F, J, 3) of the body's joints, canonical axes, from any clip of this body.
+
+        Joints are found by name and placed by the clip's own hierarchy, so another rotation convention,
+        channel order or root layout (a static parent above the root) reads the same. A clip on another
+        skeleton (a body joint missing or re-parented, a bone of another length) is refused, naming
+        the joints that differ.
+        """
+        canonical = self.canonical_skeleton
+        names = list(motion.skeleton.names)
+        missing = [n for n in canonical.names if n not in names]
+        moved = [
+            n for n in canonical.names[1:]
+            if n in names and _parent_name(motion.skeleton, n) != _parent_name(canonical, n)
+        ]  # fmt: skip
+        if missing or moved:
+            parts = [f"missing {_listed(missing)}"] if missing else []
+            parts += [f"other parent for {_listed(moved)}"] if moved else []
+            raise WalkdiffError(f"not the evaluator's skeleton: {'; '.join(parts)}", path=path)
+        world = _world(motion)[0][:, [names.index(n) for n in canonical.names]] @ self.turn.T
+        bones = np.linalg.norm(world[:, 1:] - world[:, canonical.parents[1:]], axis=-1).mean(axis=0)
+        expected = np.linalg.norm(canonical.offsets[1:], axis=-1)
+        off = np.flatnonzero(np.abs(bones - expected) > BONE_TOLERANCE * self.body_height) + 1
+        if off.size:
+            shown = ", ".join(
+                f"{canonical.names[j]} ({bones[j - 1]:.4g} vs {expected[j - 1]:.4g})" for j in off[:6]
+            )
+            raise WalkdiffError(
+                f"not the evaluator's skeleton: bone lengths differ (file vs evaluator, {self.units}) "
+                f"at {shown}{' ...' if off.size > 6 else ''}",
+                path=path,
+            )
+        return world
 
     # ------------------------------------------------------------ conversions
 
@@ -628,6 +663,10 @@ class SkeletonProfile:
 
 
 # ---------------------------------------------------------------- helpers
+
+
+def _listed(names: list[str], limit: int = 8) -> str:
+    return ", ".join(names[:limit]) + (" ..." if len(names) > limit else "")
 
 
 def _parent_name(skeleton: Skeleton, name: str) -> str | None:
