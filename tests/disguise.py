@@ -272,6 +272,57 @@ def rotation_order(motion: Motion, order: str, position_order: str | None = None
     return Motion(skeleton, motion.rotations.copy(), motion.positions.copy(), motion.frame_time)
 
 
+# ------------------------------------------------------------------------------------------ twists
+
+
+def _axis_rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations by `angles` (N,) radians about the unit `axis` (Rodrigues)."""
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    s, c = np.sin(angles)[:, None, None], np.cos(angles)[:, None, None]
+    return np.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def push_twists(motion: Motion, seed: int = 0) -> Motion:
+    """Every joint turned about its bone by a random angle on every frame, the turn taken out again by its
+    children: the same world joint positions written with other rotations, as another solver, retargeting
+    tool or exporter would write them (the convention of twists is free).
+
+    A joint with one child turns about the bone to that child, per frame; a joint with several children
+    turns by one random constant rotation and its children's OFFSETs turn back with it. Joints with fewer
+    than three rotation channels, or with such a child, keep their rotations.
+    """
+    rng = np.random.default_rng(seed)
+    sk = motion.skeleton
+    frames = motion.num_frames
+    rotations = motion.rotations.copy()
+    positions = motion.positions.copy()
+    offsets = sk.offsets.copy()
+    full = [sk.rotation_order(j) and len(sk.rotation_order(j)) == 3 for j in range(sk.num_joints)]
+    for j in range(sk.num_joints):
+        children = sk.children(j)
+        if not children or not full[j] or not all(full[c] for c in children):
+            continue
+        if len(children) == 1 and np.linalg.norm(offsets[children[0]]) > 1e-9:
+            axis = offsets[children[0]] / np.linalg.norm(offsets[children[0]])
+            turn = _axis_rotations(axis, rng.uniform(-np.pi, np.pi, frames))
+        else:
+            axis = rng.normal(size=3)
+            turn = np.broadcast_to(
+                _axis_rotations(axis / np.linalg.norm(axis), rng.uniform(-np.pi, np.pi, 1)), (frames, 3, 3)
+            )
+            for c in children:
+                offsets[c] = turn[0].T @ offsets[c]
+        back = np.swapaxes(turn, -1, -2)
+        rotations[:, j] = rotations[:, j] @ turn
+        for c in children:
+            rotations[:, c] = back @ rotations[:, c]
+            # A translation given per frame (position channels) turns back like an OFFSET.
+            positions[:, c] = (
+                (back @ positions[:, c, :, None])[..., 0] if sk.position_order(c) else offsets[c]
+            )
+    return Motion(_skeleton(sk, offsets=offsets), rotations, positions, motion.frame_time)
+
+
 # A channel about axis a of a partial channel set becomes a channel about U a (up to sign, which the
 # written angle absorbs): X stays X, Y becomes Z, Z becomes Y.
 _Z_UP_AXIS = {"X": "X", "Y": "Z", "Z": "Y"}

@@ -64,7 +64,7 @@ def test_halves_fmd_is_zero_for_identical_halves():
 def test_evaluate_real_only_writes_both_reports(setup, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the MLflow database lands in tmp_path/mlruns
     out = tmp_path / "report"
-    args = ["evaluate", "--evaluator", str(setup["ckpt"]), "--real-only", "--num", "40", "--repeats", "3"]
+    args = ["evaluate", "--evaluator", str(setup["ckpt"]), "--real-only", "--num", "200", "--repeats", "3"]
     args += ["--seed", "3", "--contents", "walk", "--root", str(setup["root"])]
     assert main(args + ["--out", str(out), "--mlflow-experiment", "eval-test"]) == 0
 

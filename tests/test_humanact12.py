@@ -227,16 +227,21 @@ def trained(datamodule, tmp_path_factory) -> dict[str, Path]:
     return {"generator": folder / "generator.ckpt", "evaluator": folder / "evaluator.ckpt"}
 
 
-def test_action_evaluator_reads_raw_windows_of_any_length(datamodule, trained):
+def test_action_evaluator_reads_positions_of_any_length(datamodule, trained):
     evaluator = load_evaluator(trained["evaluator"])
     assert isinstance(evaluator, ActionEvaluator) and evaluator.skeleton.names == NAMES
     raw = torch.from_numpy(np.stack([f[:45] for _, _, f in datamodule.split_features("test")[:4]]))
-    features, style, action = evaluator.embed_and_classify(raw)
+    positions = evaluator.raw_positions(raw.double()).float()
+    features, style, action = evaluator.embed_and_classify(positions)
     assert features.shape == (4, 8) and style.shape == (4, 1) and action.shape == (4, 12)
-    assert torch.equal(evaluator.features(raw), features)
+    assert torch.equal(evaluator.features(positions), features)
     assert not torch.allclose(features[0], features[1])  # different clips, different features
-    with pytest.raises(WalkdiffError, match=r"expects raw feature windows \(B, F, 152\)"):
-        evaluator.features(raw[..., :100])
+    # Where a clip stands and which way it faces do not matter: it is moved to the origin, facing +Z.
+    turn = torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    moved = positions @ turn.T + torch.tensor([3.0, 0.0, -2.0])
+    torch.testing.assert_close(evaluator.features(moved), features, atol=1e-4, rtol=1e-4)
+    with pytest.raises(WalkdiffError, match=r"expects joint positions \(B, frames, 24, 3\)"):
+        evaluator.features(positions[:, :, :20])
 
 
 def test_generated_motion_exports_to_bvh_on_the_smpl_skeleton(trained, tmp_path):

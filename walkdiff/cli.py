@@ -145,6 +145,27 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--overwrite", action="store_true", help="replace existing configs")
 
     p = sub.add_parser(
+        "score",
+        help="score any folder of BVH files (or a transfer's outputs) with an evaluator: report.json/.md",
+    )
+    p.add_argument("folder", nargs="?", default=None, help="folder of BVH files (not with --transfer)")
+    p.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    p.add_argument("--out", required=True, help="folder for report.json and report.md")
+    p.add_argument("--labels", default=None, help="label manifest (CSV/JSON: file, style, content)")
+    p.add_argument("--pattern", default=None, help="regex with (?P<style>...) / (?P<content>...) groups")
+    p.add_argument(
+        "--transfer", default=None,
+        help="transfer manifest CSV: file, source, style[, content] (paths relative to it)",
+    )  # fmt: skip
+    p.add_argument("--stride", type=int, default=None, help="frames between windows (default: half a window)")
+    p.add_argument("--bootstrap", type=int, default=500, help="resamples of the clips (default 500)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--contents", default=None, help="real reference contents (default: the protocol's)")
+    p.add_argument("--root", default=None, help="data root (default: as in the evaluator checkpoint)")
+    p.add_argument("--cache-dir", default=None, help="feature cache (default: as in the checkpoint)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report")
+
+    p = sub.add_parser(
         "evaluate", help="FMD, recognition accuracy, diversity, skating, jitter over repeats: report.json/.md"
     )
     p.add_argument(
@@ -437,6 +458,13 @@ def run_command(args: argparse.Namespace) -> int:
         options = vars(args).copy()
         del options["command"]
         print(json.dumps(strict_json(walk(**options)), indent=2))
+    elif args.command == "score":
+        from walkdiff.score import score
+
+        options = vars(args).copy()
+        del options["command"]
+        report = score(**options)
+        print(f"wrote {args.out}/report.json and report.md in {report['elapsed_s']} s")
     elif args.command == "distill":
         from walkdiff.distill import distill
 

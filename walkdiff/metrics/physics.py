@@ -23,6 +23,32 @@ def _check_positions(name: str, positions: Tensor, min_frames: int) -> None:
         )
 
 
+def skating_sums(
+    positions: Tensor, contacts: Tensor, foot_joints: Sequence[int], fps: float, speed_threshold: float
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Per window (B,): contact steps, skating steps and the sum of horizontal foot speeds over contact
+    steps (see `FootSkating`)."""
+    feet = positions[:, :, list(foot_joints)].double()
+    step = feet[:, 1:] - feet[:, :-1]
+    # Horizontal speed in a Y-up world: (B, F-1, n_feet).
+    speed = step[..., [0, 2]].norm(dim=-1) * fps
+    in_contact = contacts.double() > 0.5
+    in_contact = in_contact[:, 1:] & in_contact[:, :-1]
+    return (
+        in_contact.sum(dim=(1, 2)).double(),
+        (in_contact & (speed > speed_threshold)).sum(dim=(1, 2)).double(),
+        (speed * in_contact).sum(dim=(1, 2)),
+    )
+
+
+def jerk_sums(positions: Tensor, fps: float) -> tuple[Tensor, Tensor]:
+    """Per window (B,): the sum of jerk magnitudes (third difference times fps^3) and their count."""
+    magnitude = (torch.diff(positions.double(), n=3, dim=1) * fps**3).norm(dim=-1)
+    return magnitude.sum(dim=(1, 2)), torch.full(
+        (positions.shape[0],), magnitude[0].numel(), dtype=torch.float64
+    )
+
+
 class FootSkating(Metric):
     """Foot sliding while in contact: ``compute()`` gives ``{"skate_ratio", "slide_speed"}``.
 
@@ -64,15 +90,12 @@ class FootSkating(Metric):
             raise WalkdiffError(
                 f"FootSkating foot joints {self.foot_joints} do not fit positions with {j} joints"
             )
-        feet = positions[:, :, self.foot_joints].double()
-        step = feet[:, 1:] - feet[:, :-1]
-        # Horizontal speed in a Y-up world: (B, F-1, n_feet).
-        speed = step[..., [0, 2]].norm(dim=-1) * self.fps
-        in_contact = contacts.double() > 0.5
-        in_contact = in_contact[:, 1:] & in_contact[:, :-1]
-        self.contact_steps += in_contact.sum()
-        self.skating_steps += (in_contact & (speed > self.speed_threshold)).sum()
-        self.speed_sum += speed[in_contact].sum()
+        contact, skating, speed = skating_sums(
+            positions, contacts, self.foot_joints, self.fps, self.speed_threshold
+        )
+        self.contact_steps += contact.sum()
+        self.skating_steps += skating.sum()
+        self.speed_sum += speed.sum()
 
     def compute(self) -> dict[str, Tensor]:
         return {
@@ -102,10 +125,9 @@ class Jitter(Metric):
     def update(self, positions: Tensor) -> None:
         """Add world joint positions (B, F, J, 3), F >= 4."""
         _check_positions("Jitter", positions, min_frames=4)
-        jerk = torch.diff(positions.double(), n=3, dim=1) * self.fps**3
-        magnitude = jerk.norm(dim=-1)
-        self.jerk_sum += magnitude.sum()
-        self.count += magnitude.numel()
+        jerk, count = jerk_sums(positions, self.fps)
+        self.jerk_sum += jerk.sum()
+        self.count += count.sum()
 
     def compute(self) -> Tensor:
         return self.jerk_sum / self.count
