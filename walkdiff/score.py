@@ -281,13 +281,16 @@ def score(
         raise WalkdiffError(
             "--labels and --pattern do not apply to --transfer: the manifest labels every output"
         )
+    # Labels and manifests are checked before the evaluator's data is loaded.
+    inputs = (
+        folder_labels(Path(folder), labels, pattern) if transfer is None else read_transfer_manifest(transfer)
+    )
     scorer = ClipScorer(evaluator, root, cache_dir, contents, stride)
-
     if transfer is None:
-        rows, clips, skipped = _score_folder(scorer, Path(folder), labels, pattern, bootstrap, seed)
+        rows, clips, skipped = _score_folder(scorer, inputs, bootstrap, seed)
         verdict = None
     else:
-        rows, clips, skipped, verdict = _score_transfer(scorer, Path(transfer), bootstrap, seed)
+        rows, clips, skipped, verdict = _score_transfer(scorer, inputs, Path(transfer), bootstrap, seed)
     report = {
         "settings": {
             "folder": None if folder is None else str(folder),
@@ -332,8 +335,7 @@ def _clip_table(clips: list[Clip], windows: WindowSet, scorer: ClipScorer) -> li
     return out
 
 
-def _score_folder(scorer: ClipScorer, folder: Path, labels, pattern, bootstrap: int, seed: int):
-    files = folder_labels(folder, labels, pattern)
+def _score_folder(scorer: ClipScorer, files: list[tuple[str, Path, dict]], bootstrap: int, seed: int):
     clips = []
     for name, path, values in tqdm(files, desc="reading", unit="clip"):
         clip = scorer.read(path, name)
@@ -350,8 +352,7 @@ def _score_folder(scorer: ClipScorer, folder: Path, labels, pattern, bootstrap: 
     return rows, table, skipped
 
 
-def _score_transfer(scorer: ClipScorer, manifest: Path, bootstrap: int, seed: int):
-    entries = read_transfer_manifest(manifest)
+def _score_transfer(scorer: ClipScorer, entries: list[dict], manifest: Path, bootstrap: int, seed: int):
     outputs, sources = [], {}
     for entry in tqdm(entries, desc="reading", unit="clip"):
         scorer.label_id("style", entry["style"], f"{manifest}:{entry['line']}")

@@ -164,8 +164,13 @@ class ClipStatistics:
         return torch.repeat_interleave(offsets[drawn] - begins, lengths) + torch.arange(int(lengths.sum()))
 
     def bootstrap(self, resamples: int, seed: int = 0) -> dict[str, dict[str, float]]:
-        """{metric: {value, low, high, n}}: the value on the set, a 95% percentile interval over
-        `resamples` resamples of its clips."""
+        """{metric: {value, low, high, n}}: the value on the set and a 95% interval from `resamples`
+        resamples of its clips.
+
+        The interval is the 2.5-97.5 percentile range of the resamples moved by their bias (their mean
+        minus the value): a resample holds fewer distinct clips than the set, which alone raises FMD, so
+        a plain percentile range may not even hold the value.
+        """
         point = self.metrics(torch.ones(self.num_clips), seed)
         generator = torch.Generator().manual_seed(seed)
         draws = []
@@ -176,6 +181,9 @@ class ClipStatistics:
         for name, value in point.items():
             samples = np.array([d[name] for d in draws], dtype=np.float64)
             samples = samples[np.isfinite(samples)]
-            low, high = np.percentile(samples, [2.5, 97.5]) if samples.size else (np.nan, np.nan)
+            low, high = np.nan, np.nan
+            if samples.size and np.isfinite(value):
+                bias = samples.mean() - value
+                low, high = np.percentile(samples, [2.5, 97.5]) - bias
             out[name] = {"value": value, "low": float(low), "high": float(high), "n": self.num_clips}
         return out
