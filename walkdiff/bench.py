@@ -629,8 +629,26 @@ def bench_gesture(out: str, ckpt: str | None = None, frames: int = 40, repeats: 
     return result
 
 
+def _strengths(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or not all(0 < v <= 1 for v in values):
+        raise WalkdiffError(f"--strengths: expected comma-separated numbers in (0, 1], got {text!r}")
+    return values
+
+
 def run(args) -> None:
-    if args.what == "data":
+    if args.what == "protocol":
+        from walkdiff.protocol import bench_protocol
+
+        bench_protocol(
+            args.out, args.ckpt, args.evaluator, args.student, _strengths(args.strengths), args.samples,
+            args.bootstrap, args.seed,
+        )  # fmt: skip
+        print(f"wrote {args.out}/protocol.json and protocol.md")
+    elif args.what == "data":
         bench_data(args.out, args.dataset, args.root)
     elif args.what == "train":
         bench_train(args.out, args.config, args.batches)

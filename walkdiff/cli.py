@@ -324,6 +324,17 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True, help="folder for sample.json and sample.png")
     b.add_argument("--strength", type=float, default=0.6, help="transfer noise level (default 0.6)")
     quality_options(b, 400)
+    b = bench.add_parser(
+        "protocol", help="sampling and transfer rows of the evaluation protocol beside its baselines"
+    )
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    b.add_argument("--student", default=None, help="a distilled student's checkpoint (one more row)")
+    b.add_argument("--out", required=True, help="folder for protocol.json and protocol.md")
+    b.add_argument("--strengths", default="0.4,0.6,0.8", help="transfer strengths (default 0.4,0.6,0.8)")
+    b.add_argument("--samples", type=int, default=256, help="windows per sampling row (default 256)")
+    b.add_argument("--bootstrap", type=int, default=200, help="resamples of the clips (default 200)")
+    b.add_argument("--seed", type=int, default=0)
     return parser
 
 

@@ -384,44 +384,57 @@ def _score_transfer(scorer: ClipScorer, entries: list[dict], manifest: Path, boo
             votes = torch.bincount(source_windows.content_logits[source_windows.clip == i].argmax(-1))
             source.content = scorer.contents[int(votes.argmax())]
 
-    real = _real_targets(scorer, entries, source_clips)
-    candidates = {
-        "output": outputs,
-        "baseline: source unchanged": [
-            Clip(s.name, s.positions, e["style"]) for s, e in zip(source_clips, entries, strict=True)
-        ],
-        "baseline: real target-style clips": real,
+    targets = [e["style"] for e in entries]
+    rows = {"output": transfer_row(scorer, outputs, source_clips, bootstrap, seed)}
+    rows |= transfer_baselines(scorer, source_clips, targets, bootstrap, seed)
+    windows = scorer.windows(outputs, _paired_starts(scorer, outputs, source_clips))
+    return rows, _clip_table(outputs, windows, scorer), [], transfer_verdict(rows)
+
+
+def _paired_starts(scorer: ClipScorer, clips: list[Clip], sources: list[Clip]) -> list[list[int]]:
+    return [
+        scorer.starts(min(len(c.positions), len(s.positions))) for c, s in zip(clips, sources, strict=True)
+    ]
+
+
+def transfer_row(
+    scorer: ClipScorer, clips: list[Clip], sources: list[Clip], bootstrap: int, seed: int
+) -> dict:
+    """The transfer metrics of `clips` (labelled with their target styles) against their `sources`
+    (labelled with their contents), window by window at the same times."""
+    for clip, source in zip(clips, sources, strict=True):
+        clip.content = source.content
+    starts = _paired_starts(scorer, clips, sources)
+    windows = scorer.windows(clips, starts)
+    paired = scorer.windows(sources, starts)
+    per_window = {
+        "target_style_acc": windows.style_logits.argmax(-1) == windows.style,
+        "content_kept": windows.content_logits.argmax(-1) == windows.content,
+        "content_distance": (windows.features - paired.features).norm(dim=-1) / scorer.real_spread,
     }
-    rows, table = {}, None
-    for row, clips in candidates.items():
-        starts = [
-            scorer.starts(min(len(c.positions), len(s.positions)))
-            for c, s in zip(clips, source_clips, strict=True)
-        ]
-        for clip, source in zip(clips, source_clips, strict=True):
-            clip.content = source.content
-        windows = scorer.windows(clips, starts)
-        paired = scorer.windows(source_clips, starts)
-        distance = (windows.features - paired.features).norm(dim=-1) / scorer.real_spread
-        per_window = {
-            "target_style_acc": windows.style_logits.argmax(-1) == windows.style,
-            "content_kept": windows.content_logits.argmax(-1) == windows.content,
-            "content_distance": distance,
-        }
-        rows[row] = scorer.statistics(windows, per_window).bootstrap(bootstrap, seed)
-        if row == "output":
-            table = _clip_table(clips, windows, scorer)
-    return rows, table, [], transfer_verdict(rows)
+    return scorer.statistics(windows, per_window).bootstrap(bootstrap, seed)
 
 
-def _real_targets(scorer: ClipScorer, entries: list[dict], sources: list[Clip]) -> list[Clip]:
-    """For every manifest row, a real test clip of its target style, of the source's content when the
-    test split has one; rows of one (style, content) take the candidates in turn."""
+def transfer_baselines(
+    scorer: ClipScorer, sources: list[Clip], targets: list[str], bootstrap: int, seed: int
+) -> dict[str, dict]:
+    """The two rows every transfer is compared with: each source unchanged but labelled with its target
+    style, and a real test clip of the target style in its place."""
+    unchanged = [Clip(s.name, s.positions, t) for s, t in zip(sources, targets, strict=True)]
+    real = _real_targets(scorer, targets, sources)
+    return {
+        "baseline: source unchanged": transfer_row(scorer, unchanged, sources, bootstrap, seed),
+        "baseline: real target-style clips": transfer_row(scorer, real, sources, bootstrap, seed),
+    }
+
+
+def _real_targets(scorer: ClipScorer, targets: list[str], sources: list[Clip]) -> list[Clip]:
+    """For every target style, a real test clip of that style, of the source's content when the test
+    split has one; targets of one (style, content) take the candidates in turn."""
     real = scorer.real_clips("test")
     taken: dict[tuple[str, str], int] = {}
     out = []
-    for entry, source in zip(entries, sources, strict=True):
-        style = entry["style"]
+    for style, source in zip(targets, sources, strict=True):
         pool = [c for c in real if c.style == style and c.content == source.content] or [
             c for c in real if c.style == style
         ]

@@ -22,7 +22,9 @@ from torchmetrics.image.kid import poly_kernel
 
 from walkdiff.metrics.distribution import Diversity, frechet_distance
 
-KERNEL_CHUNK = 2048  # windows per block of the kernel matrix
+KERNEL_CHUNK = 2048
+# Metrics that cannot be negative, so neither can their interval ends (KID can: it is unbiased).
+NON_NEGATIVE = ("fmd", "diversity", "skate_ratio", "slide_speed", "jitter", "content_distance")  # windows per block of the kernel matrix
 
 
 def kernel_sums(x: Tensor, y: Tensor, x_groups: Tensor, num_groups: int) -> Tensor:
@@ -185,5 +187,7 @@ class ClipStatistics:
             if samples.size and np.isfinite(value):
                 bias = samples.mean() - value
                 low, high = np.percentile(samples, [2.5, 97.5]) - bias
+                if name in NON_NEGATIVE:
+                    low, high = max(low, 0.0), max(high, 0.0)
             out[name] = {"value": value, "low": float(low), "high": float(high), "n": self.num_clips}
         return out

@@ -1,0 +1,198 @@
+"""`walkdiff bench protocol`: walkdiff's rows of the evaluation protocol, scored as `walkdiff score` scores
+any method, beside the baselines every method is compared with.
+
+- Sampling: `samples` windows balanced over styles from the generator (DDPM over all steps and DDIM-10)
+  and from a distilled student (DDIM-10, when given), each window a clip; the real training split as
+  the floor a generator can reach.
+- Transfer: every real test clip of the protocol's contents restyled to every other style, at each
+  strength, with and without `--keep-trajectory`; the unchanged sources and real clips of the target
+  styles scored the same way. A setting is a style transfer when it beats both baselines
+  (`score.transfer_verdict`).
+
+Writes OUT/protocol.json and OUT/protocol.md (the README's table).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from walkdiff.files import output_folder, write_json, write_text
+from walkdiff.score import (
+    METRICS,
+    Clip,
+    ClipScorer,
+    format_summary,
+    transfer_baselines,
+    transfer_row,
+    transfer_verdict,
+)
+
+SAMPLE_METRICS = ("style_acc", "fmd", "kid", "diversity", "skate_ratio", "jitter")
+TRANSFER_METRICS = ("target_style_acc", "content_kept", "content_distance", "fmd", "kid", "skate_ratio")
+
+
+def _clips_of_raw(scorer: ClipScorer, raw: torch.Tensor, styles: list[str], content: str | None, name: str):
+    positions = scorer.scorer.positions(raw).numpy()
+    return [
+        Clip(f"{name}/{i}", p, style, content)
+        for i, (p, style) in enumerate(zip(positions, styles, strict=True))
+    ]
+
+
+def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, bootstrap: int, **sampling):
+    from walkdiff.evaluation import generate_windows
+
+    contents = list(model.spec["contents"])
+    content_ids = [contents.index(n) for n in scorer.data.selection.names]
+    generator = torch.Generator(device=model.device).manual_seed(seed)
+    windows = generate_windows(model, samples, content_ids, generator, batch, **sampling)
+    styles = [model.spec["styles"][int(s)] for s in windows.style]
+    clips = _clips_of_raw(scorer, windows.raw, styles, None, "sample")
+    for clip, c in zip(clips, windows.content, strict=True):
+        clip.content = contents[int(c)]
+    scored = scorer.windows(clips)
+    return scorer.statistics(scored, scorer.recognition(scored)).bootstrap(bootstrap, seed)
+
+
+def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.Tensor], strength: float,
+               keep: bool, seed: int) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
+    """Every source restyled to every other style: (outputs, their sources, target styles)."""
+    from walkdiff.generation import Sampling, restyle
+
+    styles = list(model.spec["styles"])
+    contents = list(model.spec["contents"])
+    generator = torch.Generator().manual_seed(seed)
+    outputs, paired, targets = [], [], []
+    for source, raw in tqdm(list(zip(sources, raws, strict=True)), desc=f"transfer {strength}", unit="clip"):
+        target = torch.tensor([i for i, s in enumerate(styles) if s != source.style])
+        x0 = model.normalizer.normalize(raw)[None].expand(len(target), -1, -1)
+        content = torch.full_like(target, contents.index(source.content))
+        x = restyle(model, x0, target, content, strength, Sampling(), generator, keep)
+        restyled = torch.from_numpy(model.to_raw(x, True))
+        names = [styles[int(t)] for t in target]
+        outputs += _clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
+        paired += [source] * len(target)
+        targets += names
+    return outputs, paired, targets
+
+
+def bench_protocol(
+    out: str | Path,
+    ckpt: str | Path,
+    evaluator: str | Path,
+    student: str | Path | None = None,
+    strengths: tuple[float, ...] = (0.4, 0.6, 0.8),
+    samples: int = 256,
+    bootstrap: int = 200,
+    seed: int = 0,
+    batch_size: int = 64,
+) -> dict:
+    from walkdiff.generation import load_generator
+
+    started = time.perf_counter()
+    out = output_folder(out)
+    scorer = ClipScorer(evaluator)
+    model = load_generator(ckpt)
+    rows: dict[str, dict] = {}
+    print("sampling rows", flush=True)
+    rows["walkdiff, DDPM 100"] = _sample_row(scorer, model, samples, seed, batch_size, bootstrap)
+    rows["walkdiff, DDIM 10"] = _sample_row(
+        scorer, model, samples, seed, batch_size, bootstrap, sampler="ddim", steps=10
+    )
+    if student is not None:
+        rows["distilled student, DDIM 10"] = _sample_row(
+            scorer, load_generator(student), samples, seed, batch_size, bootstrap, sampler="ddim", steps=10
+        )
+    train = scorer.windows(scorer.real_clips("train"))
+    rows["real train (floor)"] = scorer.statistics(train, scorer.recognition(train)).bootstrap(
+        bootstrap, seed
+    )
+
+    # Transfer: the real test clips as features (what restyle takes) and as positions (what is scored).
+    test = [
+        (info, features)
+        for info, _, features in scorer.data.split_features("test")
+        if features.shape[0] >= scorer.window
+    ]
+    sources = [
+        Clip(f"test/{i}", scorer.scorer.positions(torch.from_numpy(f)[None])[0].numpy(),
+             scorer.styles[info.style], scorer.data.selection.names[info.content])
+        for i, (info, f) in enumerate(test)
+    ]  # fmt: skip
+    raws = [torch.from_numpy(f) for _, f in test]
+    transfer: dict[str, dict] = {}
+    paired, targets = None, None
+    for strength in strengths:
+        for keep in (False, True):
+            outputs, paired, targets = _transfers(scorer, model, sources, raws, strength, keep, seed)
+            name = f"transfer {strength:g}" + (", keep trajectory" if keep else "")
+            transfer[name] = transfer_row(scorer, outputs, paired, bootstrap, seed)
+    baselines = transfer_baselines(scorer, paired, targets, bootstrap, seed)
+    verdicts = {name: transfer_verdict({"output": row} | baselines) for name, row in transfer.items()}
+    transfer |= baselines
+
+    result = {
+        "benchmark": "protocol",
+        "ckpt": str(ckpt),
+        "student": None if student is None else str(student),
+        "evaluator": str(evaluator),
+        "samples": samples,
+        "bootstrap": bootstrap,
+        "seed": seed,
+        "transfer_pairs": len(targets),
+        "sources": len(sources),
+        "sampling": rows,
+        "transfer": transfer,
+        "verdicts": verdicts,
+        "elapsed_s": round(time.perf_counter() - started, 1),
+    }
+    write_json(out / "protocol.json", result)
+    write_text(out / "protocol.md", format_protocol(result))
+    return result
+
+
+def _table(rows: dict[str, dict], metrics: tuple[str, ...], verdicts: dict | None = None) -> list[str]:
+    head = "| | " + " | ".join(METRICS[m][0] for m in metrics) + (" | style transfer |" if verdicts else " |")
+    lines = [head, "|---|" + "---:|" * len(metrics) + ("---|" if verdicts else "")]
+    for name, row in rows.items():
+        cells = [format_summary(row[m], METRICS[m][1]) if m in row else "" for m in metrics]
+        verdict = ""
+        if verdicts is not None:
+            verdict = (
+                " | " + ("**yes**" if verdicts[name]["style_transfer"] else "no")
+                if name in verdicts
+                else " | "
+            )
+        lines.append(f"| {name} | " + " | ".join(cells) + verdict + " |")
+    return lines
+
+
+def format_protocol(result: dict) -> str:
+    lines = [
+        "# walkdiff on the evaluation protocol",
+        "",
+        f"- generator `{result['ckpt']}`, evaluator `{result['evaluator']}`"
+        + (f", student `{result['student']}`" if result["student"] else ""),
+        f"- sampling: {result['samples']} windows per row; transfer: {result['sources']} real test clips, "
+        f"each to every other style ({result['transfer_pairs']} outputs per row)",
+        f"- every value on the whole set [95% interval by bootstrap over clips, {result['bootstrap']} "
+        "resamples]",
+        "",
+        "## Sampling",
+        "",
+        *_table(result["sampling"], SAMPLE_METRICS),
+        "",
+        "## Style transfer",
+        "",
+        *_table(result["transfer"], TRANSFER_METRICS, result["verdicts"]),
+        "",
+        "A style transfer must recognise the target style at least 80% as often as real clips of that "
+        "style do and more often than the unchanged source, keep the source's content in 95% of windows, "
+        "and stay nearer the source than real clips of the target style.",
+        "",
+    ]
+    return "\n".join(lines)
