@@ -24,7 +24,14 @@ from walkdiff.metrics.distribution import Diversity, frechet_distance
 
 KERNEL_CHUNK = 2048
 # Metrics that cannot be negative, so neither can their interval ends (KID can: it is unbiased).
-NON_NEGATIVE = ("fmd", "diversity", "skate_ratio", "slide_speed", "jitter", "content_distance")  # windows per block of the kernel matrix
+NON_NEGATIVE = (
+    "fmd",
+    "diversity",
+    "skate_ratio",
+    "slide_speed",
+    "jitter",
+    "content_distance",
+)  # windows per block of the kernel matrix
 
 
 def kernel_sums(x: Tensor, y: Tensor, x_groups: Tensor, num_groups: int) -> Tensor:
