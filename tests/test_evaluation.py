@@ -216,3 +216,33 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
     fixed = report["student_ddim_fix_feet"]
     assert fixed["before"]["fmd"] == quality[4]["fmd_per_seed"][0] and fixed["after"]["fmd"] > 0
     assert json.loads((tmp_path / "d.json").read_text())["quality"] == report["quality"]
+
+
+def test_bench_protocol_scores_walkdiff_beside_the_baselines(setup, tmp_path):
+    from walkdiff.protocol import bench_protocol
+
+    torch.manual_seed(0)
+    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=10)
+    tiny_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=1).fit(model, dm)
+    ckpt = tmp_path / "generator.ckpt"
+    model.trainer.save_checkpoint(ckpt)
+
+    result = bench_protocol(
+        tmp_path / "protocol", ckpt, setup["ckpt"], strengths=(0.5,), samples=16, bootstrap=10
+    )
+    assert list(result["sampling"]) == ["walkdiff, DDPM 100", "walkdiff, DDIM 10", "real train (floor)"]
+    assert list(result["transfer"]) == [
+        "transfer 0.5", "transfer 0.5, keep trajectory",
+        "baseline: source unchanged", "baseline: real target-style clips",
+    ]  # fmt: skip
+    # Every test clip went to every other style; the unchanged sources are their own distance 0.
+    assert result["transfer_pairs"] == result["sources"] * 7
+    assert result["transfer"]["baseline: source unchanged"]["content_distance"]["value"] == pytest.approx(
+        0, abs=1e-6
+    )
+    for row in result["transfer"].values():
+        assert 0 <= row["target_style_acc"]["value"] <= 1 and row["fmd"]["value"] >= 0
+    assert set(result["verdicts"]) == {"transfer 0.5", "transfer 0.5, keep trajectory"}
+    table = (tmp_path / "protocol" / "protocol.md").read_text()
+    assert "## Style transfer" in table and "| baseline: real target-style clips |" in table
