@@ -248,6 +248,8 @@ def test_score_refuses_another_skeleton_and_an_old_report(setup, folders, tmp_pa
     args = ["score", str(folders[0]), "--evaluator", str(setup["ckpt"]), "--out", str(tmp_path / "a")]
     assert main(args) == 1
     assert "report.json: a report is already there; pass --overwrite" in capsys.readouterr().err
+    assert main(args + ["--overwrite", "--stride", "0"]) == 1
+    assert "--stride: expected a whole number of frames >= 1, got 0" in capsys.readouterr().err
     other = tmp_path / "other"
     other.mkdir()
     motion = read_bvh(next(folders[0].glob("*.bvh")))
@@ -272,20 +274,16 @@ def _manifest(path: Path, rows: list[tuple[str, str, str]]) -> Path:
     return path
 
 
+def _transfer_args(manifest: Path, evaluator: Path, out: Path) -> list[str]:
+    return ["score", "--transfer", str(manifest), "--evaluator", str(evaluator), "--out", str(out)]
+
+
 def test_transfer_protocol_scores_output_and_both_baselines(setup, folders, tmp_path):  # noqa: F811
     sources = sorted(folders[0].glob("*.bvh"))[:4]
     # A "method" that returns its input unchanged: it must not pass for a style transfer.
     rows = [(str(s), str(s), "old" if not s.name.startswith("old") else "proud") for s in sources]
     manifest = _manifest(tmp_path / "transfer.csv", rows)
-    args = [
-        "score",
-        "--transfer",
-        str(manifest),
-        "--evaluator",
-        str(setup["ckpt"]),
-        "--out",
-        str(tmp_path / "t"),
-    ]
+    args = _transfer_args(manifest, setup["ckpt"], tmp_path / "t")
     args += ["--root", str(setup["root"]), "--cache-dir", str(setup["cache"]), "--bootstrap", "30"]
     assert main(args) == 0
     report = json.loads((tmp_path / "t" / "report.json").read_text())
@@ -303,15 +301,7 @@ def test_transfer_protocol_scores_output_and_both_baselines(setup, folders, tmp_
 
 def test_transfer_manifest_errors_name_the_line(setup, tmp_path, capsys):  # noqa: F811
     manifest = _manifest(tmp_path / "transfer.csv", [("missing.bvh", "missing.bvh", "old")])
-    args = [
-        "score",
-        "--transfer",
-        str(manifest),
-        "--evaluator",
-        str(setup["ckpt"]),
-        "--out",
-        str(tmp_path / "t"),
-    ]
+    args = _transfer_args(manifest, setup["ckpt"], tmp_path / "t")
     assert main(args) == 1
     assert f"{manifest}:2: file 'missing.bvh': no such file" in capsys.readouterr().err
     (tmp_path / "bad.csv").write_text("file,style\nx.bvh,old\n")

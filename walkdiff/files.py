@@ -61,6 +61,18 @@ def write_json(path: str | Path, data) -> Path:
     )
 
 
+def read_utf8(path: Path, what: str) -> str:
+    """A text file's contents (a UTF-8 byte-order mark dropped), or a WalkdiffError naming `what`."""
+    from walkdiff.errors import WalkdiffError
+
+    try:
+        return Path(path).read_bytes().decode("utf-8-sig")
+    except OSError as e:
+        raise WalkdiffError(f"cannot read {what} ({e.strerror})", path=path) from None
+    except UnicodeDecodeError:
+        raise WalkdiffError(f"{what} is not UTF-8 text", path=path) from None
+
+
 def read_config(path: str | Path, what: str) -> dict:
     """A YAML or JSON mapping from a file, or a WalkdiffError naming the file and what was expected."""
     from omegaconf import OmegaConf

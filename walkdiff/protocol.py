@@ -130,7 +130,7 @@ def bench_protocol(
         for keep in (False, True):
             outputs, paired, targets = _transfers(scorer, model, sources, raws, strength, keep, seed)
             name = f"transfer {strength:g}" + (", keep trajectory" if keep else "")
-            transfer[name] = transfer_row(scorer, outputs, paired, bootstrap, seed)
+            transfer[name] = transfer_row(scorer, outputs, paired, bootstrap, seed)[0]
     baselines = transfer_baselines(scorer, paired, targets, bootstrap, seed)
     verdicts = {name: transfer_verdict({"output": row} | baselines) for name, row in transfer.items()}
     transfer |= baselines

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from walkdiff.errors import WalkdiffError
 from walkdiff.evaluation import MotionScorer, WindowSet, data_settings, load_evaluator, window_set
-from walkdiff.files import output_folder, write_json, write_text
+from walkdiff.files import output_folder, read_utf8, write_json, write_text
 from walkdiff.metrics import Diversity
 from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.metrics.physics import jerk_sums, skating_sums
@@ -78,9 +78,9 @@ class ClipScorer:
         self.evaluator = load_evaluator(evaluator_path)
         spec = self.evaluator.spec
         self.fps, self.window = float(spec["fps"]), int(spec["window"])
-        self.stride = stride or max(1, self.window // 2)
-        if self.stride < 1:
+        if stride is not None and stride < 1:
             raise WalkdiffError(f"--stride: expected a whole number of frames >= 1, got {stride}")
+        self.stride = stride or max(1, self.window // 2)
         self.styles, self.contents = list(spec["styles"]), list(spec["contents"])
         overrides = {"root": root, "cache_dir": cache_dir}
         checkpoint = read_checkpoint(evaluator_path, "evaluator", mmap=False)
@@ -213,12 +213,7 @@ def folder_labels(folder: Path, labels: str | None, pattern: str | None) -> list
 def read_transfer_manifest(path: Path) -> list[dict]:
     """Rows {file, source, style[, content]} of a transfer manifest; paths relative to its folder."""
     path = Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except OSError as e:
-        raise WalkdiffError(f"cannot read the transfer manifest ({e.strerror})", path=path) from None
-    except UnicodeDecodeError:
-        raise WalkdiffError("the transfer manifest is not UTF-8 text", path=path) from None
+    text = read_utf8(path, "the transfer manifest")
     expected = "expected a CSV header with columns file, source, style (and optionally content)"
     reader = csv.DictReader(io.StringIO(text))
     header = [h.strip().lower() for h in reader.fieldnames or []]
@@ -385,9 +380,8 @@ def _score_transfer(scorer: ClipScorer, entries: list[dict], manifest: Path, boo
             source.content = scorer.contents[int(votes.argmax())]
 
     targets = [e["style"] for e in entries]
-    rows = {"output": transfer_row(scorer, outputs, source_clips, bootstrap, seed)}
-    rows |= transfer_baselines(scorer, source_clips, targets, bootstrap, seed)
-    windows = scorer.windows(outputs, _paired_starts(scorer, outputs, source_clips))
+    output, windows = transfer_row(scorer, outputs, source_clips, bootstrap, seed)
+    rows = {"output": output} | transfer_baselines(scorer, source_clips, targets, bootstrap, seed)
     return rows, _clip_table(outputs, windows, scorer), [], transfer_verdict(rows)
 
 
@@ -399,9 +393,9 @@ def _paired_starts(scorer: ClipScorer, clips: list[Clip], sources: list[Clip]) -
 
 def transfer_row(
     scorer: ClipScorer, clips: list[Clip], sources: list[Clip], bootstrap: int, seed: int
-) -> dict:
+) -> tuple[dict, WindowSet]:
     """The transfer metrics of `clips` (labelled with their target styles) against their `sources`
-    (labelled with their contents), window by window at the same times."""
+    (labelled with their contents), window by window at the same times; and the scored windows."""
     for clip, source in zip(clips, sources, strict=True):
         clip.content = source.content
     starts = _paired_starts(scorer, clips, sources)
@@ -412,7 +406,7 @@ def transfer_row(
         "content_kept": windows.content_logits.argmax(-1) == windows.content,
         "content_distance": (windows.features - paired.features).norm(dim=-1) / scorer.real_spread,
     }
-    return scorer.statistics(windows, per_window).bootstrap(bootstrap, seed)
+    return scorer.statistics(windows, per_window).bootstrap(bootstrap, seed), windows
 
 
 def transfer_baselines(
@@ -423,8 +417,8 @@ def transfer_baselines(
     unchanged = [Clip(s.name, s.positions, t) for s, t in zip(sources, targets, strict=True)]
     real = _real_targets(scorer, targets, sources)
     return {
-        "baseline: source unchanged": transfer_row(scorer, unchanged, sources, bootstrap, seed),
-        "baseline: real target-style clips": transfer_row(scorer, real, sources, bootstrap, seed),
+        "baseline: source unchanged": transfer_row(scorer, unchanged, sources, bootstrap, seed)[0],
+        "baseline: real target-style clips": transfer_row(scorer, real, sources, bootstrap, seed)[0],
     }
 
 

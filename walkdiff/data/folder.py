@@ -42,6 +42,7 @@ from typing import ClassVar
 
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import read_utf8
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.skeleton import Motion
 
@@ -326,12 +327,7 @@ def _clean_file(value: str) -> str:
 
 
 def _read_manifest(path: Path) -> list[_Entry]:
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except OSError as e:
-        raise WalkdiffError(f"cannot read the manifest ({e.strerror})", path=path) from None
-    except UnicodeDecodeError:
-        raise WalkdiffError("the manifest is not UTF-8 text", path=path) from None
+    text = read_utf8(path, "the manifest")
     return _read_json(text, path) if path.suffix.lower() == ".json" else _read_csv(text, path)
 
 

@@ -13,7 +13,7 @@ different sizes compare. FMD is biased upwards for small sets (its covariance es
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -56,7 +56,7 @@ class Reference:
     mean: Tensor
     cov: Tensor
     kernel_within: float  # mean of k(y, y') over pairs of different windows
-    cov_sqrt: Tensor | None = None  # the symmetric square root of `cov`
+    cov_sqrt: Tensor = field(init=False)  # the symmetric square root of `cov`
 
     def __post_init__(self) -> None:
         values, vectors = torch.linalg.eigh(self.cov)
