@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import strict_json, write_json
+from walkdiff.files import strict_json, write_atomic, write_json
 
 
 def machine() -> dict:
@@ -358,10 +358,8 @@ def _plot_quality(path: Path, rows: list[dict]) -> None:
         ax.set_title(label)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=120)
+    write_atomic(path, lambda f: fig.savefig(f, format="png", dpi=120))
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 class _QualityBench:

@@ -1,21 +1,71 @@
-"""Writing output files atomically: readers (and a crash) never see a half-written file."""
+"""Writing outputs safely: atomically (no half-written file under a final name), one writer at a time
+(a lock per output), and no temporary files left behind by a writer that was killed."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import math
 import os
+import re
 import tempfile
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
+
+# `.NAME.PID.RANDOM.tmp`: the PID tells a dead writer's leftovers from a live writer's work in progress.
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[^.]+\.tmp$")
+
+
+def temporary_file(path: str | Path) -> tuple[int, Path]:
+    """An open (fd, path) temporary beside `path`, named so that `clean_temporaries` knows its writer."""
+    path = Path(path)
+    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
+    return fd, Path(temp)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by another user
+        return True
+    return True
+
+
+def clean_temporaries(folder: str | Path, name: str | None = None) -> list[Path]:
+    """Remove temporary files in `folder` (of output `name` only, if given) whose writer has died.
+
+    Every command runs this when it starts writing, so a killed run's leftovers go with the next run.
+    """
+    removed = []
+    folder = Path(folder)
+    if not folder.is_dir():
+        return removed
+    for entry in folder.iterdir():
+        match = _TEMPORARY.match(entry.name)
+        if match is None or (name is not None and match["name"] != name) or _alive(int(match["pid"])):
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            entry.unlink()
+            removed.append(entry)
+    if removed:
+        warnings.warn(
+            f"{folder}: removed {len(removed)} temporary file(s) left by a writer that was stopped: "
+            + ", ".join(p.name for p in removed[:3]),
+            stacklevel=2,
+        )
+    return removed
 
 
 def write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
     """Let `save` write into a temporary file in the target folder, then rename it onto `path`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, temp = temporary_file(path)
     try:
         with os.fdopen(fd, "wb") as f:
             save(f)
@@ -25,6 +75,56 @@ def write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
         Path(temp).unlink(missing_ok=True)
         raise
     return path
+
+
+LOCK_NAME = ".walkdiff.lock"
+
+
+@contextlib.contextmanager
+def output_lock(path: str | Path, command: str, folder: bool = True) -> Iterator[Path]:
+    """Hold the lock of an output (`folder`, or one file) while a command writes into it.
+
+    A second writer is refused with the holder's PID and command. The lock is an flock, which the
+    system releases when its holder exits or is killed, so a crash never leaves an output locked; its
+    file is removed on release. Temporary files of writers that died are removed once the lock is held.
+    """
+    from walkdiff.errors import WalkdiffError
+
+    path = Path(path)
+    parent = path if folder else path.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    lock = parent / LOCK_NAME if folder else parent / f".{path.name}.lock"
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 200).decode("utf-8", "replace").strip() or "unknown"
+            os.close(fd)
+            pid, _, other = holder.partition(" ")
+            raise WalkdiffError(
+                f"another walkdiff process (PID {pid}, `walkdiff {other or '?'}`) is writing "
+                f"{'into this folder' if folder else 'this file'}; wait for it to finish or choose "
+                "another output",
+                path=path,
+            ) from None
+        # The previous holder may have removed the file between our open and our lock: lock the new one.
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()} {command}\n".encode())
+        clean_temporaries(parent, None if folder else path.name)
+        yield path
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            lock.unlink()
+        os.close(fd)  # releases the flock
 
 
 def output_folder(path: str | Path, option: str = "--out") -> Path:

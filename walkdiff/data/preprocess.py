@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import warnings
 import zipfile
 from concurrent.futures import ProcessPoolExecutor
@@ -23,6 +21,7 @@ from tqdm import tqdm
 from walkdiff.data.clips import ClipInfo
 from walkdiff.data.datasets import MotionSource
 from walkdiff.errors import WalkdiffError
+from walkdiff.files import clean_temporaries, write_atomic
 from walkdiff.motion.mirror import mirror as mirror_motion
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import encode
@@ -162,14 +161,8 @@ def _save(cache_file: Path, kept: list, profile: SkeletonProfile, mirror: bool) 
     }
     if mirror:
         arrays["mirrored"] = np.concatenate([r[1] for _, r in kept])
-    fd, tmp = tempfile.mkstemp(dir=cache_file.parent, suffix=".tmp.npz")
-    os.close(fd)
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, cache_file)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    clean_temporaries(cache_file.parent)  # of fits killed while writing a cache
+    write_atomic(cache_file, lambda f: np.savez(f, **arrays))
 
 
 def _load(cache_file: Path, mirror: bool, from_cache: bool = True) -> ProcessedClips:
