@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from walkdiff.errors import WalkdiffError
 
@@ -194,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="score the windows as sampled, without grounding their feet (reported beside them otherwise)",
     )  # fmt: skip
     p.add_argument("--mlflow-experiment", default=None, help="log metrics and reports into an MLflow run")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report")
 
     def sampling_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
@@ -264,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clip-seconds", type=float, default=2.0, help="diversity clip length (default 2 s)")
     p.add_argument("--pck-threshold", type=float, default=0.1, help="PCK distance in metres (default 0.1)")
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report")
 
     p = sub.add_parser(
         "distill", help="train a student of a generator that samples with DDIM in few steps (default 10)"
@@ -335,6 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--samples", type=int, default=256, help="windows per sampling row (default 256)")
     b.add_argument("--bootstrap", type=int, default=200, help="resamples of the clips (default 200)")
     b.add_argument("--seed", type=int, default=0)
+    for b in bench.choices.values():
+        b.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run")
     return parser
 
 
@@ -352,7 +357,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.command is None:
             build_parser().print_help()
             return 2
-        return run_command(args)
+        output = command_output(args)
+        if output is None:
+            return run_command(args)
+        from walkdiff.files import check_free, output_lock
+
+        path, guarded = output
+        with output_lock(path, " ".join(filter(None, (args.command, getattr(args, "what", None))))):
+            check_free([path / name for name in guarded], getattr(args, "overwrite", False))
+            return run_command(args)
     except WalkdiffError as error:
         if debug:
             raise
@@ -373,6 +386,30 @@ def main(argv: list[str] | None = None) -> int:
             message = f"{type(error).__name__}: {error} (run again with --debug for the traceback)"
         print(f"walkdiff: error: {message}", file=sys.stderr)
         return 1
+
+
+# Folder outputs of the bench verbs; the others write one JSON file.
+BENCH_FOLDERS = ("sample", "protocol")
+# The files that mark an earlier run, for commands whose own code does not check what it would replace.
+REPORTS = {"evaluate": ("report.json", "report.md"), "evaluate-gesture": ("report.json",)}
+BENCH_REPORTS = {"sample": ("sample.json", "sample.png"), "protocol": ("protocol.json", "protocol.md")}
+
+
+def command_output(args: argparse.Namespace) -> tuple[Path, tuple[str, ...]] | None:
+    """The output a command writes, locked while it runs, and the files there that need --overwrite.
+
+    Commands that write check their own outputs (by name) unless listed here; a file output is guarded
+    as a whole ("" names the file itself).
+    """
+    if args.command == "convert":
+        return Path(args.output), ()
+    if args.command == "bench":
+        folder = args.what in BENCH_FOLDERS
+        return Path(args.out), BENCH_REPORTS[args.what] if folder else ("",)
+    out = getattr(args, "out", None)
+    if out is None:  # inspect; data scan without --out
+        return None
+    return Path(out), REPORTS.get(args.command, ())
 
 
 def _walkdiff_cause(error: BaseException) -> WalkdiffError | None:

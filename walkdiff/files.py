@@ -9,8 +9,8 @@ import json
 import math
 import os
 import re
+import sys
 import tempfile
-import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
@@ -37,7 +37,7 @@ def _alive(pid: int) -> bool:
 
 
 def clean_temporaries(folder: str | Path, name: str | None = None) -> list[Path]:
-    """Remove temporary files in `folder` (of output `name` only, if given) whose writer has died.
+    """Remove temporary files whose writer has died: of output `name` in `folder`, or anywhere under it.
 
     Every command runs this when it starts writing, so a killed run's leftovers go with the next run.
     """
@@ -45,7 +45,7 @@ def clean_temporaries(folder: str | Path, name: str | None = None) -> list[Path]
     folder = Path(folder)
     if not folder.is_dir():
         return removed
-    for entry in folder.iterdir():
+    for entry in folder.glob(".*.tmp") if name is not None else folder.rglob(".*.tmp"):
         match = _TEMPORARY.match(entry.name)
         if match is None or (name is not None and match["name"] != name) or _alive(int(match["pid"])):
             continue
@@ -53,10 +53,10 @@ def clean_temporaries(folder: str | Path, name: str | None = None) -> list[Path]
             entry.unlink()
             removed.append(entry)
     if removed:
-        warnings.warn(
-            f"{folder}: removed {len(removed)} temporary file(s) left by a writer that was stopped: "
-            + ", ".join(p.name for p in removed[:3]),
-            stacklevel=2,
+        print(
+            f"walkdiff: removed {len(removed)} temporary file(s) left in {folder} by a writer that was "
+            "stopped: " + ", ".join(p.name for p in removed[:3]),
+            file=sys.stderr,
         )
     return removed
 
@@ -77,35 +77,31 @@ def write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
     return path
 
 
-LOCK_NAME = ".walkdiff.lock"
-
-
 @contextlib.contextmanager
-def output_lock(path: str | Path, command: str, folder: bool = True) -> Iterator[Path]:
-    """Hold the lock of an output (`folder`, or one file) while a command writes into it.
+def output_lock(path: str | Path, command: str) -> Iterator[Path]:
+    """Hold the lock of an output (a folder or a file) while a command writes it.
 
-    A second writer is refused with the holder's PID and command. The lock is an flock, which the
+    The lock is `.NAME.lock` beside the output, so nothing is created before the command has checked
+    its inputs. A second writer is refused with the holder's PID and command. It is an flock, which the
     system releases when its holder exits or is killed, so a crash never leaves an output locked; its
-    file is removed on release. Temporary files of writers that died are removed once the lock is held.
+    file is removed on release. Once the lock is held, temporary files of writers that died are removed.
     """
     from walkdiff.errors import WalkdiffError
 
-    path = Path(path)
-    parent = path if folder else path.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    lock = parent / LOCK_NAME if folder else parent / f".{path.name}.lock"
+    path = Path(path).resolve()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = path.parent / f".{path.name}.lock"
     while True:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.read(fd, 200).decode("utf-8", "replace").strip() or "unknown"
+            holder = os.read(fd, 200).decode("utf-8", "replace").strip()
             os.close(fd)
             pid, _, other = holder.partition(" ")
             raise WalkdiffError(
-                f"another walkdiff process (PID {pid}, `walkdiff {other or '?'}`) is writing "
-                f"{'into this folder' if folder else 'this file'}; wait for it to finish or choose "
-                "another output",
+                f"another walkdiff process (PID {pid or '?'}, `walkdiff {other or '?'}`) is writing this "
+                "output; wait for it to finish or choose another output",
                 path=path,
             ) from None
         # The previous holder may have removed the file between our open and our lock: lock the new one.
@@ -119,12 +115,24 @@ def output_lock(path: str | Path, command: str, folder: bool = True) -> Iterator
     try:
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()} {command}\n".encode())
-        clean_temporaries(parent, None if folder else path.name)
+        clean_temporaries(path.parent, path.name)
+        if path.is_dir():
+            clean_temporaries(path)
         yield path
     finally:
         with contextlib.suppress(FileNotFoundError):
             lock.unlink()
         os.close(fd)  # releases the flock
+
+
+def check_free(paths: list[Path], overwrite: bool) -> None:
+    """Refuse to replace existing outputs unless `overwrite`: a WalkdiffError listing them."""
+    from walkdiff.errors import WalkdiffError
+
+    taken = [str(p) for p in paths if Path(p).exists()]
+    if taken and not overwrite:
+        more = f" and {len(taken) - 3} more" if len(taken) > 3 else ""
+        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}{more}; pass --overwrite to replace them")
 
 
 def output_folder(path: str | Path, option: str = "--out") -> Path:

@@ -181,7 +181,8 @@ class _StaleCache(Exception):
 
 
 def _read_cache(cache_file: Path, mirror: bool, from_cache: bool) -> ProcessedClips:
-    with np.load(cache_file) as data:
+    # Opened here: np.load given a path leaks the file when the archive is corrupt.
+    with open(cache_file, "rb") as f, np.load(f) as data:
         bounds = np.cumsum(data["lengths"])[:-1]
         features = np.split(data["features"], bounds)
         mirrored = np.split(data["mirrored"], bounds) if mirror else None
