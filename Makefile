@@ -17,6 +17,7 @@ $(STAMP): pyproject.toml $(LOCK)
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -c $(LOCK) -e '.[dev]'
 	@touch $(STAMP)
+	@echo "installed: run \`source $(VENV)/bin/activate\` to put walkdiff on your PATH (or call $(VENV)/bin/walkdiff)"
 
 test: install
 	$(PY) -m pytest -q

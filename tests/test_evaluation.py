@@ -118,6 +118,8 @@ def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path, capsy
     assert generated["fmd"]["mean"] > report["rows"]["real test"]["fmd"]["mean"]
     assert "| generated |" in (out / "report.md").read_text()
     assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(out)]) == 1
+    assert "report.json" in capsys.readouterr().err  # an earlier report is not replaced unasked
+    assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(tmp_path / "other")]) == 1
     assert "--evaluator is required" in capsys.readouterr().err
 
 

@@ -249,7 +249,7 @@ def test_score_refuses_another_skeleton_and_an_old_report(setup, folders, tmp_pa
     assert main(args) == 1
     assert "report.json: a report is already there; pass --overwrite" in capsys.readouterr().err
     assert main(args + ["--overwrite", "--stride", "0"]) == 1
-    assert "--stride: expected a whole number of frames >= 1, got 0" in capsys.readouterr().err
+    assert "--stride: expected a whole number >= 1, got '0'" in capsys.readouterr().err
     other = tmp_path / "other"
     other.mkdir()
     motion = read_bvh(next(folders[0].glob("*.bvh")))

@@ -20,6 +20,7 @@ from walkdiff.data.speech import (
     list_takes,
     load_take,
     log_mel,
+    read_wav,
 )
 from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
@@ -171,3 +172,16 @@ def test_zeggs_take_loads_and_aligns(zeggs_dir):
     # Speech is louder than the pauses: the log-mel energy spans a wide range.
     energy = take.audio.mean(axis=1)
     assert energy.max() - energy.min() > 5
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_wav_with_non_finite_samples_is_refused_with_where(tmp_path, bad):
+    samples = np.zeros((16000, 2), dtype=np.float32)
+    samples[8000, 1] = bad
+    path = tmp_path / "speech.wav"
+    soundfile.write(path, samples, 16000, subtype="FLOAT")
+    with pytest.raises(WalkdiffError) as error:
+        read_wav(path)
+    assert (
+        str(path) in str(error.value) and "0.500 s" in str(error.value) and "not finite" in str(error.value)
+    )

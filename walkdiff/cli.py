@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -102,8 +103,57 @@ def report_fit(trainer) -> None:
             print(f"walkdiff: checkpoint {path}")
 
 
+def number(low: float | None = None, high: float | None = None, *, above: bool = False, below: bool = False):
+    """An argparse type: a finite number in [low, high]; `above`/`below` leave out the bound itself."""
+    left, right = "(" if above else "[", ")" if below else "]"
+    span = (
+        f" in {left}{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}{right}"
+    )
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        inside = math.isfinite(value) and (
+            (low is None or value > low or (value == low and not above))
+            and (high is None or value < high or (value == high and not below))
+        )
+        if not inside:
+            raise argparse.ArgumentTypeError(f"expected a finite number{span}, got {text!r}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def count(low: int):
+    """An argparse type: a whole number >= low."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = low - 1
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {low}, got {text!r}")
+        return value
+
+    parse.__name__ = "count"
+    return parse
+
+
+class UsageError(WalkdiffError):
+    """A bad command line: said in one line with a pointer to the command's --help, not the whole usage."""
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        raise UsageError(f"{message}; see `{self.prog} --help`")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="walkdiff",
         description="Diffusion-based motion synthesis. Training verbs: "
         + ", ".join(LIGHTNING_VERBS)
@@ -120,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("convert", help="BVH -> features -> BVH, optionally resampled and/or mirrored")
     p.add_argument("input")
     p.add_argument("output")
-    p.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
+    p.add_argument("--fps", type=number(0, above=True), default=None, help="resample to this frame rate")
     p.add_argument("--mirror", action="store_true", help="swap left and right (in world space)")
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
@@ -137,10 +187,22 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--pattern", default=None, help="regular expression with named groups style / content")
     d.add_argument("--default-style", default=None, help="style of clips without one")
     d.add_argument("--default-content", default=None, help="content of clips without one")
-    d.add_argument("--val-fraction", type=float, default=None, help="per label, held out for validation")
-    d.add_argument("--test-fraction", type=float, default=None, help="per label, held out for testing")
+    d.add_argument(
+        "--val-fraction",
+        type=number(0, 1, below=True),
+        default=None,
+        help="per label, held out for validation",
+    )
+    d.add_argument(
+        "--test-fraction", type=number(0, 1, below=True), default=None, help="per label, held out for testing"
+    )
     d.add_argument("--profile", default=None, help=PROFILE_HELP)
-    d.add_argument("--fps", type=float, default=None, help="training frame rate (default: 30, or the data's)")
+    d.add_argument(
+        "--fps",
+        type=number(0, above=True),
+        default=None,
+        help="training frame rate (default: 30, or the data's)",
+    )
     d.add_argument("--name", default=None, help="config name (default: the folder's name)")
     d.add_argument("--out", default=None, help="folder to write the two configs into")
     d.add_argument("--overwrite", action="store_true", help="replace existing configs")
@@ -158,9 +220,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--transfer", default=None,
         help="transfer manifest CSV: file, source, style[, content] (paths relative to it)",
     )  # fmt: skip
-    p.add_argument("--stride", type=int, default=None, help="frames between windows (default: half a window)")
-    p.add_argument("--bootstrap", type=int, default=500, help="resamples of the clips (default 500)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--stride", type=count(1), default=None, help="frames between windows (default: half a window)"
+    )
+    p.add_argument("--bootstrap", type=count(0), default=500, help="resamples of the clips (default 500)")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--contents", default=None, help="real reference contents (default: the protocol's)")
     p.add_argument("--root", default=None, help="data root (default: as in the evaluator checkpoint)")
     p.add_argument("--cache-dir", default=None, help="feature cache (default: as in the checkpoint)")
@@ -176,19 +240,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--evaluator", help="MotionEvaluator checkpoint (walking and action models)")
     p.add_argument("--out", required=True, help="folder for report.json and report.md")
-    p.add_argument("--num", type=int, default=1000, help="windows per repeat (default 1000)")
-    p.add_argument("--repeats", type=int, default=20, help="repeats (default 20)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num", type=count(1), default=1000, help="windows per repeat (default 1000)")
+    p.add_argument("--repeats", type=count(1), default=20, help="repeats (default 20)")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--real-only", action="store_true", help="only the real reference rows")
     p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
-    p.add_argument("--steps", type=int, default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-    p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance weight")
+    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    p.add_argument("--guidance", type=number(0), default=1.0, help="classifier-free guidance weight")
     p.add_argument("--split", choices=("test", "val"), default="test", help="real reference split")
     p.add_argument("--contents", default=None, help="content groups (default: the model's; or walk)")
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
     p.add_argument("--cache-dir", default=None, help="feature cache (default: as in the checkpoint)")
-    p.add_argument("--stride", type=int, default=1, help="frames between real windows (default 1)")
-    p.add_argument("--batch-size", type=int, default=500, help="windows generated / scored at once")
+    p.add_argument("--stride", type=count(1), default=1, help="frames between real windows (default 1)")
+    p.add_argument("--batch-size", type=count(1), default=500, help="windows generated / scored at once")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda")
     p.add_argument(
         "--no-ground", dest="ground", action="store_false",
@@ -202,18 +266,20 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", required=True, help="output folder")
         p.add_argument("--style", required=True, help="a style, or a mix: angry:0.7,old:0.3")
         p.add_argument("--content", default="walk", help="content group (default walk)")
-        p.add_argument("--seed", type=int, default=0)
+        p.add_argument("--seed", type=count(0), default=0)
         p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
-        p.add_argument("--steps", type=int, default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-        p.add_argument("--eta", type=float, default=0.0, help="DDIM noise (0: deterministic)")
-        p.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance (1: none)")
+        p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+        p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+        p.add_argument("--guidance", type=number(0), default=1.0, help="classifier-free guidance (1: none)")
         p.add_argument(
             "--overlap",
-            type=int,
+            type=count(0),
             default=None,
             help="frames shared by consecutive windows (default: half a window)",
         )
-        p.add_argument("--blend", type=int, default=None, help="of those, frames cross-faded (default: half)")
+        p.add_argument(
+            "--blend", type=count(0), default=None, help="of those, frames cross-faded (default: half)"
+        )
         p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
         p.add_argument(
             "--no-ground", dest="ground", action="store_false",
@@ -225,22 +291,26 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sample", help="generate styled motion of any length: BVH + GIF + manifest.json")
     sampling_options(p)
-    p.add_argument("--num", type=int, default=8, help="clips (default 8)")
-    p.add_argument("--frames", type=int, default=300, help="frames per clip at the model's fps (default 300)")
+    p.add_argument("--num", type=count(1), default=8, help="clips (default 8)")
+    p.add_argument(
+        "--frames", type=count(1), default=300, help="frames per clip at the model's fps (default 300)"
+    )
 
     p = sub.add_parser("transfer", help="restyle a BVH clip (noise to strength*T, denoise in the new style)")
     sampling_options(p)
     p.add_argument("--input", required=True, help="BVH clip on the model's skeleton (any frame rate)")
-    p.add_argument("--strength", type=float, default=0.6, help="noise level in (0, 1] (default 0.6)")
+    p.add_argument(
+        "--strength", type=number(0, 1, above=True), default=0.6, help="noise level in (0, 1] (default 0.6)"
+    )
     p.add_argument("--keep-trajectory", action="store_true", help="keep the source's root path exactly")
 
     p = sub.add_parser("gesture", help="speech-driven gestures from a WAV with DiffMotion: BVH + GIF")
     p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
     p.add_argument("--audio", required=True, help="speech WAV (any rate; resampled as needed)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
-    p.add_argument("--streams", type=int, default=1, help="samples generated together (default 1)")
+    p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
@@ -248,8 +318,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--style", required=True, help="walking style, e.g. proud")
     p.add_argument("--path", required=True, help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}')
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--speed", type=float, default=None, help="m/s (default: the file's, or the style's)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--speed", type=number(0, above=True), default=None, help="m/s (default: the file's, or the style's)"
+    )
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
@@ -261,10 +333,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
     p.add_argument("--out", required=True, help="folder for report.json and per-take BVH/GIF")
-    p.add_argument("--samples", type=int, default=5, help="samples of each take's audio (default 5)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--clip-seconds", type=float, default=2.0, help="diversity clip length (default 2 s)")
-    p.add_argument("--pck-threshold", type=float, default=0.1, help="PCK distance in metres (default 0.1)")
+    p.add_argument("--samples", type=count(1), default=5, help="samples of each take's audio (default 5)")
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument(
+        "--clip-seconds", type=number(0, above=True), default=2.0, help="diversity clip length (default 2 s)"
+    )
+    p.add_argument(
+        "--pck-threshold",
+        type=number(0, above=True),
+        default=0.1,
+        help="PCK distance in metres (default 0.1)",
+    )
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing report")
 
@@ -282,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="share of each batch held, without a jump, to the teacher's own output, so DDPM and the other "
         "samplers still sample as the teacher did (default 0.25)",
     )  # fmt: skip
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
     p = sub.add_parser("bench", help="benchmarks; results written as JSON")
@@ -294,24 +373,26 @@ def build_parser() -> argparse.ArgumentParser:
     b = bench.add_parser("train", help="training windows/s under Lightning vs a plain PyTorch loop")
     b.add_argument("--out", required=True)
     b.add_argument("--config", default="conf/xia_cpu.yaml")
-    b.add_argument("--batches", type=int, default=30, help="batches timed per repeat")
+    b.add_argument("--batches", type=count(1), default=30, help="batches timed per repeat")
     b = bench.add_parser("gesture", help="DiffMotion seconds per frame (1 stream, N=100/500), 16 streams")
     b.add_argument("--out", required=True)
     b.add_argument(
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
-    b.add_argument("--frames", type=int, default=40, help="frames timed per setting (default 40)")
+    b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
     b = bench.add_parser("walk", help="path-following error and style accuracy of walks along test paths")
     b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")
     b.add_argument("--out", required=True, help="JSON file; the plot goes next to it as .png")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--seed", type=count(0), default=0)
 
     def quality_options(b: argparse.ArgumentParser, num: int) -> None:
         b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
-        b.add_argument("--num", type=int, default=num, help=f"windows per setting and seed (default {num})")
-        b.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-        b.add_argument("--seeds", type=int, default=3, help="seeds averaged per setting (default 3)")
+        b.add_argument(
+            "--num", type=count(1), default=num, help=f"windows per setting and seed (default {num})"
+        )
+        b.add_argument("--seed", type=count(0), default=0, help="first seed (default 0)")
+        b.add_argument("--seeds", type=count(1), default=3, help="seeds averaged per setting (default 3)")
         b.add_argument(
             "--no-ground", dest="ground", action="store_false",
             help="score windows as sampled (needed for checkpoints saved before grounding existed)",
@@ -325,7 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
     b = bench.add_parser("sample", help="FMD/style accuracy vs sampling steps, speed, --fix-feet, transfer")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     b.add_argument("--out", required=True, help="folder for sample.json and sample.png")
-    b.add_argument("--strength", type=float, default=0.6, help="transfer noise level (default 0.6)")
+    b.add_argument(
+        "--strength", type=number(0, 1, above=True), default=0.6, help="transfer noise level (default 0.6)"
+    )
     quality_options(b, 400)
     b = bench.add_parser(
         "protocol", help="sampling and transfer rows of the evaluation protocol beside its baselines"
@@ -335,9 +418,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--student", default=None, help="a distilled student's checkpoint (one more row)")
     b.add_argument("--out", required=True, help="folder for protocol.json and protocol.md")
     b.add_argument("--strengths", default="0.4,0.6,0.8", help="transfer strengths (default 0.4,0.6,0.8)")
-    b.add_argument("--samples", type=int, default=256, help="windows per sampling row (default 256)")
-    b.add_argument("--bootstrap", type=int, default=200, help="resamples of the clips (default 200)")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--samples", type=count(1), default=256, help="windows per sampling row (default 256)")
+    b.add_argument("--bootstrap", type=count(0), default=200, help="resamples of the clips (default 200)")
+    b.add_argument("--seed", type=count(0), default=0)
     for b in bench.choices.values():
         b.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run")
     return parser
@@ -364,7 +447,9 @@ def main(argv: list[str] | None = None) -> int:
 
         path, guarded = output
         with output_lock(path, " ".join(filter(None, (args.command, getattr(args, "what", None))))):
-            check_free([path / name for name in guarded], getattr(args, "overwrite", False))
+            if guarded:  # the CLI guards these outputs itself: the function underneath has no such option
+                check_free([path / name for name in guarded], args.overwrite)
+                del args.overwrite
             return run_command(args)
     except WalkdiffError as error:
         if debug:

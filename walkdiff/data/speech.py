@@ -59,6 +59,14 @@ def read_wav(path: str | Path) -> tuple[np.ndarray, int]:
         raise WalkdiffError(f"cannot read the audio file ({error})", path=path) from None
     if samples.shape[0] == 0:
         raise WalkdiffError("the audio file has no samples", path=path)
+    bad = ~np.isfinite(samples).all(axis=1)
+    if bad.any():  # float WAVs can hold NaN/inf; they would turn every mel frame after them into NaN
+        first = int(np.argmax(bad))
+        raise WalkdiffError(
+            f"{int(bad.sum())} sample(s) are not finite numbers, the first at {first / rate:.3f} s "
+            f"(sample {first}); expected audio in [-1, 1]",
+            path=path,
+        )
     return samples.mean(axis=1), int(rate)
 
 
