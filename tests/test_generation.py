@@ -370,6 +370,7 @@ def test_bad_checkpoints_are_named_with_what_is_wrong(ckpt, tmp_path, capsys, co
         (["--guidance", "nan"], "--guidance: expected a finite number in [0, inf], got 'nan'"),
         (["--sampler", "ddpm", "--steps", "5"], "--steps applies to ddim and dpmpp"),
         (["--sampler", "ddim", "--eta", "inf"], "--eta: expected a finite number in [0, 1], got 'inf'"),
+        (["--eta", "0.5"], "--eta applies to ddim only (ddpm sets its own noise)"),
     ],
 )
 def test_sampling_options_a_sampler_cannot_honour_are_refused(ckpt, tmp_path, capsys, options, message):

@@ -53,8 +53,8 @@ class Sampling:
     def __post_init__(self) -> None:
         if self.sampler not in SAMPLERS:
             raise WalkdiffError(f"--sampler: expected one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
-        if self.sampler == "dpmpp" and self.eta != 0:
-            raise WalkdiffError(f"--eta applies to DDIM only (dpmpp is deterministic), got {self.eta}")
+        if self.sampler != "ddim" and self.eta != 0:
+            raise WalkdiffError(f"--eta applies to ddim only ({self.sampler} sets its own noise), got {self.eta}")
         if self.steps is not None and self.steps < 1:
             raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
         if self.sampler == "ddpm" and self.steps is not None:
