@@ -1,0 +1,113 @@
+"""Bad input as a new user types it, through every command: one line naming what is wrong, exit 1,
+no traceback, nothing written."""
+
+from __future__ import annotations
+
+import pytest
+
+from walkdiff.cli import build_parser, main
+
+
+@pytest.fixture(autouse=True)
+def plain_argv(monkeypatch):
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+
+
+@pytest.fixture
+def files(tmp_path, monkeypatch):
+    """Broken and missing inputs in a scratch folder (the working directory, so outputs stay there)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "empty.ckpt").write_bytes(b"")
+    (tmp_path / "garbage.ckpt").write_bytes(b"PK\x03\x04 not really a checkpoint")
+    (tmp_path / "text.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")
+    (tmp_path / "file").write_text("a file where a folder is expected")
+    (tmp_path / "noise.wav").write_bytes(b"RIFF....WAVEfmt ")
+    (tmp_path / "path.json").write_text("[[0, 0], [1e400, 0]]")
+    (tmp_path / "folder").mkdir()
+    return tmp_path
+
+
+STYLE = ["--style", "angry"]
+CHECKPOINT_USERS = [
+    ["sample", "--out", "o", *STYLE],
+    ["transfer", "--out", "o", "--input", "text.bvh", *STYLE],
+    ["walk", "--out", "o", "--path", "path.json", *STYLE],
+    ["gesture", "--out", "o", "--audio", "noise.wav"],
+    ["evaluate", "--out", "o", "--evaluator", "garbage.ckpt"],
+    ["evaluate-gesture", "--out", "o"],
+    ["distill", "--out", "student.ckpt"],
+]
+
+CASES = {
+    # (arguments, words the message must hold)
+    "inspect a missing file": (["inspect", "missing.bvh"], ["missing.bvh"]),
+    "inspect a truncated BVH": (["inspect", "text.bvh"], ["text.bvh"]),
+    "convert a missing file": (["convert", "missing.bvh", "out.bvh"], ["missing.bvh"]),
+    "convert onto itself": (["convert", "text.bvh", "text.bvh", "--overwrite"], ["text.bvh"]),
+    "convert a bad rate": (["convert", "text.bvh", "o.bvh", "--fps", "inf"], ["--fps", "finite"]),
+    "scan a missing folder": (["data", "scan", "nowhere"], ["nowhere"]),
+    "scan an empty folder": (["data", "scan", "folder"], ["folder", ".bvh"]),
+    "scan a fraction over 1": (["data", "scan", "folder", "--val-fraction", "1.5"], ["--val-fraction"]),
+    "score a missing folder": (
+        ["score", "nowhere", "--evaluator", "garbage.ckpt", "--out", "o"],
+        ["nowhere"],
+    ),
+    "score into a file": (["score", "folder", "--evaluator", "garbage.ckpt", "--out", "file"], ["file"]),
+    "score a bad stride": (
+        ["score", "folder", "--evaluator", "e", "--out", "o", "--stride", "-2"],
+        ["--stride"],
+    ),
+    "sample into a file": (["sample", "--ckpt", "garbage.ckpt", "--out", "file", *STYLE], ["file"]),
+    "sample zero frames": (["sample", "--ckpt", "g", "--out", "o", *STYLE, "--frames", "0"], ["--frames"]),
+    "sample a word for a number": (
+        ["sample", "--ckpt", "g", "--out", "o", *STYLE, "--num", "ten"],
+        ["--num"],
+    ),
+    "sample an unknown sampler": (
+        ["sample", "--ckpt", "g", "--out", "o", *STYLE, "--sampler", "x"],
+        ["--sampler"],
+    ),
+    "transfer at strength 1.5": (
+        ["transfer", "--ckpt", "g", "--out", "o", "--input", "i", *STYLE, "--strength", "1.5"],
+        ["--strength", "(0, 1]"],
+    ),
+    "walk at a negative speed": (
+        ["walk", "--ckpt", "g", "--out", "o", "--path", "p", *STYLE, "--speed", "-1"],
+        ["--speed"],
+    ),
+    "gesture with no streams": (
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--streams", "0"],
+        ["--streams"],
+    ),
+    "evaluate-gesture at a nan threshold": (
+        ["evaluate-gesture", "--ckpt", "g", "--out", "o", "--pck-threshold", "nan"],
+        ["--pck-threshold"],
+    ),
+    "bench with no output": (["bench", "data"], ["--out"]),
+    "an unknown command": (["train"], ["train", "choose from"]),
+    "an unknown option": (["sample", "--ckpt", "g", "--out", "o", *STYLE, "--colour", "red"], ["--colour"]),
+}
+for command in CHECKPOINT_USERS:
+    for kind in ("empty", "garbage", "missing"):
+        extra = ["--teacher" if command[0] == "bench" else "--ckpt", f"{kind}.ckpt"]
+        CASES[f"{command[0]} with a {kind} checkpoint"] = ([*command, *extra], [f"{kind}.ckpt"])
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_bad_input_is_one_line_naming_it(files, capsys, name):
+    args, words = CASES[name]
+    before = sorted(p.name for p in files.rglob("*"))
+    assert main(args) == 1
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert err and err[-1].startswith("walkdiff: error: "), captured.err
+    assert "Traceback" not in captured.err and "usage:" not in captured.err
+    for word in words:
+        assert word in err[-1], (word, err[-1])
+    assert sorted(p.name for p in files.rglob("*")) == before, "nothing written"
+
+
+def test_every_command_is_covered():
+    commands = set(build_parser()._subparsers._group_actions[0].choices)
+    covered = {CASES[name][0][0] for name in CASES}
+    assert commands - covered == set()
