@@ -167,7 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
 
-    p = sub.add_parser("convert", help="BVH -> features -> BVH, optionally resampled and/or mirrored")
+    p = sub.add_parser(
+        "convert",
+        help="BVH -> features -> BVH, or BVH -> binary glTF (.glb); optionally resampled and/or mirrored",
+    )
     p.add_argument("input")
     p.add_argument("output")
     p.add_argument("--fps", type=number(0, above=True), default=None, help="resample to this frame rate")

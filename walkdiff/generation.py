@@ -54,7 +54,9 @@ class Sampling:
         if self.sampler not in SAMPLERS:
             raise WalkdiffError(f"--sampler: expected one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
         if self.sampler != "ddim" and self.eta != 0:
-            raise WalkdiffError(f"--eta applies to ddim only ({self.sampler} sets its own noise), got {self.eta}")
+            raise WalkdiffError(
+                f"--eta applies to ddim only ({self.sampler} sets its own noise), got {self.eta}"
+            )
         if self.steps is not None and self.steps < 1:
             raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
         if self.sampler == "ddpm" and self.steps is not None:

@@ -9,6 +9,7 @@ import numpy as np
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import read_config
 from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.mirror import mirror
 from walkdiff.motion.profile import SkeletonProfile
@@ -97,6 +98,8 @@ def convert_file(
     """BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed where it started."""
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise WalkdiffError(f"--fps: expected a positive frame rate, got {fps}")
+    if Path(target).suffix.lower() not in (".bvh", ".glb"):
+        raise WalkdiffError("expected an output ending in .bvh or .glb (binary glTF)", path=target)
     if Path(source).resolve() == Path(target).resolve():
         raise WalkdiffError("the output is the input: write to another file", path=target)
     if Path(target).exists() and not overwrite:
@@ -113,11 +116,13 @@ def convert_file(
                 path=source,
             )
         canonical = mirror(canonical, found.body_pairs)
+    mirrored = " (mirrored)" if mirror_sides else ""
+    if Path(target).suffix.lower() == ".glb":  # glTF is Y-up in metres: the canonical clip, scaled
+        write_glb(target, canonical, found.metres_per_unit)
+        frames = f"{canonical.num_frames} frames at {canonical.fps:g} fps"
+        return f"wrote {target}: {frames}, glTF (Y up, metres){mirrored}"
     features = encode(canonical, found)
     position, heading = start_pose(canonical, found)
     out = found.to_file(decode(features, canonical.skeleton, canonical.frame_time, position, heading))
-    Path(target).parent.mkdir(parents=True, exist_ok=True)
     write_bvh(target, out)
-    return (
-        f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{' (mirrored)' if mirror_sides else ''}"
-    )
+    return f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{mirrored}"
