@@ -178,6 +178,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
+    p = sub.add_parser("view", help="play BVH files side by side in 3-D in the browser (orbit, scrub, play)")
+    p.add_argument("files", nargs="+", help="BVH files (any skeleton; shown Y up in metres)")
+    p.add_argument("--port", type=count(0), default=8080, help="port (default 8080; 0: any free port)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: this machine only)")
+    p.add_argument("--profile", default=None, help=PROFILE_HELP)
+
     p = sub.add_parser("data", help="your own motion capture: `walkdiff data scan DIR`")
     data = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     d = data.add_parser(
@@ -541,6 +547,10 @@ def run_command(args: argparse.Namespace) -> int:
                 overwrite=args.overwrite,
             )  # fmt: skip
         )
+    elif args.command == "view":
+        from walkdiff.view import view
+
+        view(args.files, host=args.host, port=args.port, profile=args.profile)
     elif args.command == "data":
         from walkdiff.files import read_config
         from walkdiff.scan import scan

@@ -1,0 +1,94 @@
+"""`walkdiff view`: clips laid out Y up in metres, walking the same way; the page, opened in a real
+headless Chromium, shows the skeletons (their left/right colours counted in a screenshot)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from disguise import disguise
+from PIL import Image
+
+from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.view import ROW_SPACING, lay_out, load_clip
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+# CI installs Debian's chromium (.ci/run); elsewhere the browser test runs where one is installed.
+REQUIRE_BROWSER = os.environ.get("WALKDIFF_REQUIRE_BROWSER") == "1"
+
+
+@pytest.fixture
+def clips(xia_dir, tmp_path):
+    """A Xia clip as it is, and another disguised as Z-up, in metres, with a static root."""
+    plain = xia_dir / "angry_01_000.bvh"
+    motion, _ = disguise(read_bvh(xia_dir / "old_13_000.bvh"), ("z_up", "metres", "static_root"))
+    other = tmp_path / "other_lab.bvh"
+    write_bvh(other, motion)
+    return [plain, other]
+
+
+def test_clips_stand_up_in_metres_and_walk_the_same_way_in_rows(clips):
+    loaded = [load_clip(path) for path in clips]
+    centre, distance = lay_out(loaded)
+    for row, clip in enumerate(loaded):
+        first = clip.positions[0]
+        assert 1.2 < np.ptp(first[:, 1]) < 2.0  # a standing body, Y up, in metres
+        travel = clip.positions[-1, 0] - clip.positions[0, 0]
+        assert travel[0] > 1.0 and abs(travel[2]) < 0.1 * travel[0]  # along +x
+        assert clip.positions[0, 0, 0] == pytest.approx(0.0) and clip.positions[0, 0, 2] == pytest.approx(
+            -row * ROW_SPACING
+        )
+    assert distance >= 4.0 and centre[2] == pytest.approx(-ROW_SPACING / 2)
+
+
+def _skeleton_pixels(png) -> tuple[int, int]:
+    """Pixels of the left (blue) and right (orange) limbs, outside the page's panels."""
+    rgb = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    scene = np.ones(rgb.shape[:2], bool)
+    scene[:160, :320] = False  # the browser's notice about software WebGL
+    scene[:300, 640:] = False  # the controls
+    r, b = rgb[..., 0], rgb[..., 2]
+    return int(((b > r + 50) & scene).sum()), int(((r > b + 60) & (r > 180) & scene).sum())
+
+
+@pytest.mark.skipif(CHROMIUM is None and not REQUIRE_BROWSER, reason="no chromium here (CI installs it)")
+def test_the_page_shows_the_skeletons_in_a_headless_browser(clips, tmp_path):
+    assert CHROMIUM is not None, "CI must have chromium: .ci/run installs Debian's package"
+    server = subprocess.Popen(
+        [sys.executable, "-m", "walkdiff.cli", "view", *map(str, clips), "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        started = time.monotonic()
+        for line in server.stdout:
+            address = re.search(r"walkdiff view: (http://127\.0\.0\.1:\d+)", line)
+            if address:
+                break
+        else:
+            pytest.fail("walkdiff view ended without serving")
+        png = tmp_path / "page.png"
+        opened = time.monotonic()
+        browser = subprocess.run(
+            [
+                CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                "--no-first-run", "--disable-background-networking", "--disable-component-update",
+                "--disable-sync",
+                f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1000,700",
+                "--virtual-time-budget=1500", f"--screenshot={png}", address[1],
+            ],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert png.exists(), browser.stderr[-2000:]
+        left, right = _skeleton_pixels(png)
+        assert left > 200 and right > 200, (left, right)
+        shot = time.monotonic() - opened
+        print(f"served {opened - started:.1f} s after start; page shot {shot:.1f} s after opening")
+    finally:
+        server.terminate()
+        server.communicate(timeout=30)
