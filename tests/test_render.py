@@ -216,3 +216,22 @@ def test_real_xia_clip_renders_quickly(xia_dir, tmp_path):
     assert elapsed < 5.0  # about 0.15 s on one core; generous for a shared CI machine
     top, bottom, left, right = extent(mask(frames[-1], render.LEFT))
     assert 0 < top < bottom < 319 and 0 < left < right < 319
+
+
+def test_mp4_has_every_frame_and_the_sound_for_as_long(tmp_path):
+    import av
+
+    from walkdiff.video import write_mp4
+
+    frames = [Image.new("RGB", (321, 241), (10 * k, 100, 200)) for k in range(25)]  # odd sizes: cropped
+    rate = 16000
+    speech = 0.3 * np.sin(2 * np.pi * 220 * np.arange(rate) / rate)  # 1 s
+    path = write_mp4(tmp_path / "clip.mp4", frames, 25, (speech, rate))
+    with av.open(str(path)) as container:
+        video, sound = container.streams.video[0], container.streams.audio[0]
+        assert (video.codec_context.name, sound.codec_context.name) == ("h264", "aac")
+        assert (video.width, video.height) == (320, 240)
+        assert float(video.duration * video.time_base) == pytest.approx(1.0)
+        assert float(sound.duration * sound.time_base) == pytest.approx(1.0, abs=0.07)  # AAC frames of 64 ms
+        assert sum(1 for _ in container.decode(video=0)) == 25
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
