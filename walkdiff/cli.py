@@ -43,6 +43,9 @@ def lightning_cli(args: list[str] | None) -> None:
         def add_arguments_to_parser(self, parser) -> None:
             parser.link_arguments("data.spec", "model.init_args.data_spec", apply_on="instantiate")
 
+        def before_fit(self) -> None:
+            open_run(self.trainer)
+
         def after_fit(self) -> None:
             report_fit(self.trainer)
 
@@ -74,6 +77,24 @@ def lightning_cli(args: list[str] | None) -> None:
     )
 
 
+def open_run(trainer) -> None:
+    """Before `fit`: close the runs of killed processes in this experiment, and tag ours with PID and host.
+
+    Lightning closes its run as FAILED on an exception, Ctrl-C or SIGTERM; after SIGKILL nothing can, so
+    the next `fit` into the experiment does (`walkdiff.tracking.close_dead_runs`).
+    """
+    from lightning.pytorch.utilities.rank_zero import rank_zero_only
+
+    from walkdiff.callbacks.checkpoints import mlflow_logger
+    from walkdiff.tracking import close_dead_runs, tag_process
+
+    logger = mlflow_logger(trainer)
+    if logger is None or rank_zero_only.rank != 0:  # other DDP ranks have no run of their own
+        return
+    tag_process(logger.experiment, logger.run_id)
+    close_dead_runs(logger.experiment, logger.experiment_id)
+
+
 def report_fit(trainer) -> None:
     """After `fit`: where the checkpoints are, and whether max_time cut the planned epochs short.
 
@@ -81,6 +102,8 @@ def report_fit(trainer) -> None:
     said on the console and tagged in the MLflow run.
     """
     from lightning.pytorch.callbacks import Timer
+
+    from walkdiff.callbacks.checkpoints import RunCheckpoint
 
     planned, done = trainer.max_epochs, trainer.current_epoch
     timer = next((c for c in trainer.callbacks if isinstance(c, Timer)), None)
@@ -96,7 +119,14 @@ def report_fit(trainer) -> None:
             logger.experiment.set_tag(
                 logger.run_id, "walkdiff.stopped_by_max_time", f"epoch {done} of {planned}"
             )
+    run_dirs = {c.run_dir for c in trainer.checkpoint_callbacks if isinstance(c, RunCheckpoint)} - {None}
+    for run_dir in sorted(run_dirs):
+        print(f"walkdiff: checkpoints of this run in {run_dir}")
     for callback in trainer.checkpoint_callbacks:
+        if isinstance(callback, RunCheckpoint):
+            for link, target in callback.links().items():
+                print(f"walkdiff: checkpoint {link} -> {target}")
+            continue
         for path in {callback.best_model_path, callback.last_model_path} - {""}:
             print(f"walkdiff: checkpoint {path}")
 
@@ -361,6 +391,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("walkdiff: interrupted", file=sys.stderr)
         return 130
+    except SystemExit as stop:
+        # Lightning ends a fit on SIGTERM with a bare SystemExit (status 0): say so, and fail.
+        if type(stop).__name__ != "SIGTERMException":
+            raise
+        print("walkdiff: stopped by SIGTERM; the MLflow run is marked FAILED", file=sys.stderr)
+        return 143
     except Exception as error:  # the boundary: no bare traceback for users; --debug shows it
         if debug:
             raise
