@@ -20,7 +20,8 @@ class SleepEachBatch(L.Callback):
 
 
 class RecordSteps(L.Callback):
-    """Writes the global step at the start and end of training, and the validation losses, to `path`."""
+    """Writes to `path` the global step at the start and end of training, the validation losses and the
+    generator's last learning rate."""
 
     def __init__(self, path: str):
         self.path = Path(path)
@@ -35,7 +36,8 @@ class RecordSteps(L.Callback):
             self.record["val_loss"].append(float(trainer.callback_metrics["val/loss"]))
 
     def on_train_end(self, trainer, pl_module):
-        self.record |= {"last_step": trainer.global_step, "epochs": trainer.current_epoch}
+        lr = trainer.optimizers[0].param_groups[0]["lr"]
+        self.record |= {"last_step": trainer.global_step, "epochs": trainer.current_epoch, "lr": lr}
         self.path.write_text(json.dumps(self.record))
 
 
