@@ -301,8 +301,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ckpt", required=True, help="teacher: a StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help="student checkpoint to write")
     p.add_argument("--steps", type=int, default=10, help="DDIM steps the student is made for (default 10)")
-    p.add_argument("--minutes", type=float, default=15.0, help="training time (default 15)")
-    p.add_argument("--iterations", type=int, default=None, help="stop after this many batches")
+    p.add_argument(
+        "--iterations", type=int, default=1000,
+        help="batches to train (default 1000): the bound, so the same command and seed give the same student "
+        "on any machine",
+    )  # fmt: skip
+    p.add_argument(
+        "--minutes", type=float, default=None,
+        help="optional safety net: stop after this many minutes (says how many of the batches were done, "
+        "and records it in the student's checkpoint; the student then depends on the machine's speed)",
+    )  # fmt: skip
     p.add_argument("--lr", type=float, default=3e-5, help="Adam learning rate (default 3e-5)")
     p.add_argument(
         "--preserve", type=float, default=0.25,
