@@ -403,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         # Lightning ends a fit on SIGTERM with a bare SystemExit (status 0): say so, and fail.
         if type(stop).__name__ != "SIGTERMException":
             raise
-        print("walkdiff: stopped by SIGTERM; the MLflow run is marked FAILED", file=sys.stderr)
+        print("walkdiff: stopped by SIGTERM; its MLflow run, if any, is marked FAILED", file=sys.stderr)
         return 143
     except Exception as error:  # the boundary: no bare traceback for users; --debug shows it
         if debug:
