@@ -109,3 +109,72 @@ def test_the_jump_embedding_starts_as_the_plain_denoiser_and_is_used_only_above_
     jumps = step_jumps(100, respace(100, 10))
     assert jumps[99] == jumps[88] == jumps[11] == 11 and jumps[0] == 1
     assert int((jumps > 0).sum()) == 10 and jumps[50] == 0
+
+
+@pytest.fixture(scope="module")
+def teacher_ckpt(tmp_path_factory):
+    """A tiny StyledMotionDiffusion checkpoint (barely trained: the student only has to be reproducible)."""
+    import lightning as L
+    import synthetic
+
+    from walkdiff.data.datamodule import MotionDataModule
+    from walkdiff.models.styled_ddpm import StyledMotionDiffusion
+
+    root = tmp_path_factory.mktemp("teacher")
+    synthetic.xia_like_folder(root, walk_clips=8, frames=240)
+    dm = MotionDataModule(
+        root=str(root), cache_dir=str(root / "cache"), batch_size=8, window=24, preprocess_workers=1
+    )
+    L.seed_everything(0)
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, prediction="x0", lambda_adv=0.0)
+    trainer = synthetic.quiet_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=0)
+    trainer.fit(model, dm)
+    path = root / "teacher.ckpt"
+    trainer.save_checkpoint(path)
+    return path
+
+
+def _slowed(monkeypatch, seconds: float) -> None:
+    """Every batch of distillation takes `seconds` longer, as on a slower or busier machine."""
+    import time
+
+    from walkdiff import distill
+
+    targets = distill.student_targets
+    monkeypatch.setattr(distill, "student_targets", lambda *a: time.sleep(seconds) or targets(*a))
+
+
+def test_the_same_command_gives_the_same_student_on_a_fast_and_a_slow_machine(
+    teacher_ckpt, tmp_path, monkeypatch
+):
+    from walkdiff.distill import distill
+
+    fast = distill(str(teacher_ckpt), str(tmp_path / "fast.ckpt"), steps=4, iterations=5, minutes=30)
+    _slowed(monkeypatch, 0.2)
+    slow = distill(str(teacher_ckpt), str(tmp_path / "slow.ckpt"), steps=4, iterations=5, minutes=30)
+    assert fast["batches"] == slow["batches"] == 5 and not fast["stopped_by_minutes"]
+    assert slow["minutes"] > fast["minutes"]
+    weights = [torch.load(tmp_path / f"{n}.ckpt", weights_only=False)["state_dict"] for n in ("fast", "slow")]
+    torch.testing.assert_close(weights[0], weights[1], rtol=0, atol=0, equal_nan=True)  # bit for bit
+    teacher = torch.load(teacher_ckpt, weights_only=False)["state_dict"]
+    assert not torch.equal(weights[0]["ema.module.input.weight"], teacher["ema.module.input.weight"])
+
+
+def test_minutes_is_a_safety_net_that_says_how_much_was_done(teacher_ckpt, tmp_path, monkeypatch, capsys):
+    from walkdiff.cli import main
+
+    _slowed(monkeypatch, 0.3)
+    out = tmp_path / "student.ckpt"
+    args = ["distill", "--ckpt", str(teacher_ckpt), "--out", str(out), "--steps", "4", "--iterations", "40"]
+    assert main([*args, "--minutes", "0.01"]) == 0  # 0.6 s: two batches of 0.3 s
+    printed = capsys.readouterr()
+    assert f"distilling {teacher_ckpt} for DDIM-4: 40 batches (safety net: 0.01 min)" in printed.out
+    record = torch.load(out, weights_only=False)["distilled"]
+    assert record["stopped_by_minutes"] and 1 <= record["batches"] < 40 and record["planned_batches"] == 40
+    message = f"--minutes 0.01 stopped distillation after {record['batches']} of 40 batches"
+    assert message in printed.err
+    for bad, said in (("0", "--minutes: expected a positive"), ("nan", "--minutes: expected a positive")):
+        assert main([*args, "--minutes", bad, "--overwrite"]) == 1
+        assert said in capsys.readouterr().err
+    assert main([*args[:-1], "0", "--overwrite"]) == 1
+    assert "--iterations: expected a number of batches >= 1, got 0" in capsys.readouterr().err

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import inspect
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
 import lightning as L
+import probes
 import pytest
 import synthetic
 import torch
@@ -210,3 +213,59 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
         [0.0, 1.0, 0.0, -1.0, 0.0, 0.0]
     )
     assert losses(model.normalizer.normalize(bent))["position"].item() > 0.1
+
+
+def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_root, tmp_path, monkeypatch):
+    """Bounded by epochs (max_time only a safety net), the same command and seed train the same number
+    of epochs and steps, to the same validation losses, on a fast and a slow machine. The rerun's
+    checkpoints go to a folder of their own and last.ckpt follows them."""
+    from walkdiff.cli import main
+
+    monkeypatch.chdir(tmp_path)  # the config's mlruns/ and checkpoints/ land here
+    monkeypatch.setattr("sys.argv", ["walkdiff"])  # LightningCLI warns about pytest's own arguments
+    records = {}
+    for name, slow in (
+        ("normal", []),
+        ("slowed", [{"class_path": "probes.SleepEachBatch", "init_args": {"seconds": 0.3}}]),
+    ):
+        steps = {"class_path": "probes.RecordSteps", "init_args": {"path": f"{name}.json"}}
+        config = tmp_path / f"{name}.yaml"
+        config.write_text(
+            probes.tiny_fit_config(tiny_root, "same", epochs=3, batches=3, callbacks=[steps, *slow])
+        )
+        assert main(["fit", "--config", str(config)]) == 0
+        records[name] = json.loads((tmp_path / f"{name}.json").read_text())
+        runs = sorted(p for p in (tmp_path / "checkpoints" / "same").iterdir() if p.is_dir())
+        newest = max(runs, key=lambda p: p.stat().st_mtime)
+        assert (tmp_path / "checkpoints" / "same" / "last.ckpt").resolve() == newest / "last.ckpt"
+    normal, slowed = records["normal"], records["slowed"]
+    assert normal["epochs"] == slowed["epochs"] == 3
+    assert normal["last_step"] == slowed["last_step"] == 3 * 3 * 2  # generator and discriminator steps
+    assert len(normal["val_loss"]) == 3
+    assert slowed["val_loss"] == pytest.approx(normal["val_loss"], abs=1e-4)
+    # The learning-rate cosine spans the planned steps: it ends at its floor, 0.1 of the peak.
+    assert (
+        normal["lr"]
+        == slowed["lr"]
+        == pytest.approx(0.1 * inspect.signature(StyledMotionDiffusion).parameters["lr"].default)
+    )
+    # Two runs, two folders, each with its own last.ckpt; nothing written beside another run's file.
+    assert len(runs) == 2 and all((run / "last.ckpt").is_file() for run in runs)
+    assert not list((tmp_path / "checkpoints").rglob("*-v1.ckpt"))
+
+
+def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_path, capsys):
+    from walkdiff.callbacks.checkpoints import _point
+
+    old = tmp_path / "last.ckpt"
+    old.write_bytes(b"the earlier run")
+    target = tmp_path / "run1" / "last.ckpt"
+    target.parent.mkdir()
+    target.write_bytes(b"this run")
+    _point(old, str(target))
+    assert old.is_symlink() and old.read_bytes() == b"this run" and os.readlink(old) == "run1/last.ckpt"
+    [kept] = tmp_path.glob("earlier-*/last.ckpt")
+    assert kept.read_bytes() == b"the earlier run"
+    assert f"moved the earlier {old}" in capsys.readouterr().err
+    _point(old, str(target))  # a link is simply replaced
+    assert len(list(tmp_path.glob("earlier-*"))) == 1

@@ -45,6 +45,9 @@ def lightning_cli(args: list[str] | None) -> None:
         def add_arguments_to_parser(self, parser) -> None:
             parser.link_arguments("data.spec", "model.init_args.data_spec", apply_on="instantiate")
 
+        def before_fit(self) -> None:
+            open_run(self.trainer)
+
         def after_fit(self) -> None:
             report_fit(self.trainer)
 
@@ -76,6 +79,24 @@ def lightning_cli(args: list[str] | None) -> None:
     )
 
 
+def open_run(trainer) -> None:
+    """Before `fit`: close the runs of killed processes in this experiment, and tag ours with PID and host.
+
+    Lightning closes its run as FAILED on an exception, Ctrl-C or SIGTERM; after SIGKILL nothing can, so
+    the next `fit` into the experiment does (`walkdiff.tracking.close_dead_runs`).
+    """
+    from lightning.pytorch.utilities.rank_zero import rank_zero_only
+
+    from walkdiff.callbacks.checkpoints import mlflow_logger
+    from walkdiff.tracking import close_dead_runs, tag_process
+
+    logger = mlflow_logger(trainer)
+    if logger is None or rank_zero_only.rank != 0:  # other DDP ranks have no run of their own
+        return
+    tag_process(logger.experiment, logger.run_id)
+    close_dead_runs(logger.experiment, logger.experiment_id)
+
+
 def report_fit(trainer) -> None:
     """After `fit`: where the checkpoints are, and whether max_time cut the planned epochs short.
 
@@ -83,6 +104,8 @@ def report_fit(trainer) -> None:
     said on the console and tagged in the MLflow run.
     """
     from lightning.pytorch.callbacks import Timer
+
+    from walkdiff.callbacks.checkpoints import RunCheckpoint
 
     planned, done = trainer.max_epochs, trainer.current_epoch
     timer = next((c for c in trainer.callbacks if isinstance(c, Timer)), None)
@@ -98,7 +121,14 @@ def report_fit(trainer) -> None:
             logger.experiment.set_tag(
                 logger.run_id, "walkdiff.stopped_by_max_time", f"epoch {done} of {planned}"
             )
+    run_dirs = {c.run_dir for c in trainer.checkpoint_callbacks if isinstance(c, RunCheckpoint)} - {None}
+    for run_dir in sorted(run_dirs):
+        print(f"walkdiff: checkpoints of this run in {run_dir}")
     for callback in trainer.checkpoint_callbacks:
+        if isinstance(callback, RunCheckpoint):
+            for link, target in callback.links().items():
+                print(f"walkdiff: checkpoint {link} -> {target}")
+            continue
         for path in {callback.best_model_path, callback.last_model_path} - {""}:
             print(f"walkdiff: checkpoint {path}")
 
@@ -362,8 +392,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ckpt", required=True, help="teacher: a StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help="student checkpoint to write")
     p.add_argument("--steps", type=int, default=10, help="DDIM steps the student is made for (default 10)")
-    p.add_argument("--minutes", type=float, default=15.0, help="training time (default 15)")
-    p.add_argument("--iterations", type=int, default=None, help="stop after this many batches")
+    p.add_argument(
+        "--iterations", type=int, default=1000,
+        help="batches to train (default 1000): the bound, so the same command and seed give the same student "
+        "on any machine",
+    )  # fmt: skip
+    p.add_argument(
+        "--minutes", type=float, default=None,
+        help="optional safety net: stop after this many minutes (says how many of the batches were done, "
+        "and records it in the student's checkpoint; the student then depends on the machine's speed)",
+    )  # fmt: skip
     p.add_argument("--lr", type=float, default=3e-5, help="Adam learning rate (default 3e-5)")
     p.add_argument(
         "--preserve", type=float, default=0.25,
@@ -468,6 +506,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("walkdiff: interrupted", file=sys.stderr)
         return 130
+    except SystemExit as stop:
+        # Lightning ends a fit on SIGTERM with a bare SystemExit (status 0): say so, and fail.
+        if type(stop).__name__ != "SIGTERMException":
+            raise
+        print("walkdiff: stopped by SIGTERM; its MLflow run, if any, is marked FAILED", file=sys.stderr)
+        return 143
     except Exception as error:  # the boundary: no bare traceback for users; --debug shows it
         if debug:
             raise

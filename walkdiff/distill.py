@@ -29,6 +29,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -46,6 +47,7 @@ from walkdiff.diffusion import (
 from walkdiff.diffusion.samplers import ModelFn
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_atomic
+from walkdiff.progress import progress
 
 
 def _first_steps(steps: SamplerSteps, n: int) -> SamplerSteps:
@@ -133,16 +135,18 @@ def distill(
     ckpt: str,
     out: str,
     steps: int = 10,
-    minutes: float = 15.0,
-    iterations: int | None = None,
+    iterations: int = 1000,
+    minutes: float | None = None,
     lr: float = 3e-5,
     seed: int = 0,
     overwrite: bool = False,
     preserve: float = 0.25,
 ) -> dict:
-    """Train a DDIM-`steps` student of a StyledMotionDiffusion checkpoint for `minutes` (or `iterations`
-    batches, whichever ends first) and save it to `out`. `preserve`: the share of each batch held, without a
-    jump, to the teacher's own output. Returns the run's record."""
+    """Train a DDIM-`steps` student of a StyledMotionDiffusion checkpoint for `iterations` batches and save
+    it to `out`. The work is the bound, so the same command and seed give the same student on a fast and a
+    slow machine; `minutes`, when given, is only a safety net, and a student it stopped says so (on the
+    console and in its `distilled` record). `preserve`: the share of each batch held, without a jump, to
+    the teacher's own output. Returns the run's record."""
     from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.evaluation import data_settings
     from walkdiff.generation import load_generator
@@ -150,8 +154,10 @@ def distill(
     out_path = Path(out)
     if out_path.exists() and not overwrite:
         raise WalkdiffError("would overwrite an existing checkpoint; pass --overwrite", path=out_path)
-    if minutes <= 0 or (iterations is not None and iterations < 1):
-        raise WalkdiffError(f"--minutes must be > 0 and --iterations >= 1, got {minutes} and {iterations}")
+    if iterations < 1:
+        raise WalkdiffError(f"--iterations: expected a number of batches >= 1, got {iterations}")
+    if minutes is not None and not (math.isfinite(minutes) and minutes > 0):
+        raise WalkdiffError(f"--minutes: expected a positive number of minutes (or none), got {minutes}")
     if not 0 <= preserve < 1:
         raise WalkdiffError(f"--preserve must be in [0, 1), got {preserve}")
     model = load_generator(ckpt)
@@ -173,10 +179,10 @@ def distill(
     optimizer = torch.optim.Adam(student.parameters(), lr=lr)
 
     start, done, losses = time.perf_counter(), 0, []
-    limit = f"{minutes:g} min" + (f" or {iterations} batches" if iterations else "")
-    print(f"distilling {ckpt} for DDIM-{steps}: {limit}", flush=True)
-    while True:
-        for batch in datamodule.train_dataloader():
+    net = f" (safety net: {minutes:g} min)" if minutes is not None else ""
+    print(f"distilling {ckpt} for DDIM-{steps}: {iterations} batches{net}", flush=True)
+    with progress(total=iterations, desc="distilling", unit="batch") as bar:
+        for batch in _endless(datamodule):
             with torch.no_grad():
                 x_t, t, jump, target = student_targets(teacher, diffusion, batch, timesteps, paths, preserve)
             loss = (student(x_t, t, batch["style"], batch["content"], jump) - target).pow(2).mean()
@@ -186,15 +192,29 @@ def distill(
             optimizer.step()
             losses.append(loss.item())
             done += 1
+            bar.update(1)
+            bar.set_postfix(loss=f"{sum(losses[-25:]) / len(losses[-25:]):.3g}", refresh=False)
             elapsed = time.perf_counter() - start
-            if done % 25 == 0:
-                recent = sum(losses[-25:]) / len(losses[-25:])
-                print(f"  batch {done}, {elapsed / 60:.1f} min, loss {recent:.3g}", flush=True)
-            if elapsed >= minutes * 60 or (iterations is not None and done >= iterations):
-                return _save(checkpoint, student, out_path, ckpt, steps, preserve, done, elapsed, losses)
+            if done >= iterations or (minutes is not None and elapsed >= minutes * 60):
+                break
+    if done < iterations:
+        print(
+            f"walkdiff: --minutes {minutes:g} stopped distillation after {done} of {iterations} batches: "
+            "on a slower or busier machine the same command trains fewer; without --minutes it trains all",
+            file=sys.stderr,
+        )
+    return _save(checkpoint, student, out_path, ckpt, steps, preserve, done, iterations, elapsed, losses)
 
 
-def _save(checkpoint, student, out_path, teacher_ckpt, steps, preserve, batches, elapsed, losses) -> dict:
+def _endless(datamodule):
+    """Training batches, epoch after epoch (each epoch shuffled anew from the seeded generator)."""
+    while True:
+        yield from datamodule.train_dataloader()
+
+
+def _save(
+    checkpoint, student, out_path, teacher_ckpt, steps, preserve, batches, planned, elapsed, losses
+) -> dict:
     weights = student.state_dict()
     for name, value in weights.items():  # both copies, so sampling and any further training agree
         checkpoint["state_dict"][f"ema.module.{name}"] = value
@@ -208,6 +228,8 @@ def _save(checkpoint, student, out_path, teacher_ckpt, steps, preserve, batches,
         "steps": steps,
         "preserve": preserve,
         "batches": batches,
+        "planned_batches": planned,
+        "stopped_by_minutes": batches < planned,  # then the student depends on the machine's speed
         "minutes": round(elapsed / 60, 2),
         "final_loss": round(sum(losses[-25:]) / len(losses[-25:]), 6),
     }

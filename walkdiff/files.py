@@ -26,7 +26,7 @@ def temporary_file(path: str | Path) -> tuple[int, Path]:
     return fd, Path(temp)
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -47,7 +47,7 @@ def clean_temporaries(folder: str | Path, name: str | None = None) -> list[Path]
         return removed
     for entry in folder.glob(".*.tmp") if name is not None else folder.rglob(".*.tmp"):
         match = _TEMPORARY.match(entry.name)
-        if match is None or (name is not None and match["name"] != name) or _alive(int(match["pid"])):
+        if match is None or (name is not None and match["name"] != name) or process_alive(int(match["pid"])):
             continue
         with contextlib.suppress(FileNotFoundError):
             entry.unlink()
@@ -75,6 +75,28 @@ def write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
         Path(temp).unlink(missing_ok=True)
         raise
     return path
+
+
+def link_atomic(link: str | Path, target: str | Path) -> Path:
+    """Make `link` a relative symlink to `target`, replacing an earlier link in one step.
+
+    Readers of `link` see the old target or the new one, never a missing file. The temporary link is
+    named like every temporary here, so a writer killed between the two steps leaves nothing for good.
+    """
+    from walkdiff.errors import WalkdiffError
+
+    link = Path(link)
+    if link.is_dir() and not link.is_symlink():
+        raise WalkdiffError("a folder of that name is in the way; expected a link to a file", path=link)
+    relative = os.path.relpath(Path(target).absolute(), link.parent.absolute())
+    temp = link.parent / f".{link.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp"
+    os.symlink(relative, temp)
+    try:
+        os.replace(temp, link)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
+    return link
 
 
 @contextlib.contextmanager

@@ -261,8 +261,8 @@ trainer:
   accelerator: cpu
   devices: 1
   precision: 32-true
-  max_epochs: {max_epochs}
-  max_time: "{max_time}"
+  max_epochs: {max_epochs}            # the bound: the same model on a fast or a busy machine
+  max_time: "{max_time}"        # only a safety net (says so and tags the run when it fires)
 {every}  log_every_n_steps: 20
   num_sanity_val_steps: 0
   default_root_dir: {_yaml(directory)}
@@ -270,9 +270,9 @@ trainer:
 
 
 def _last_checkpoint(directory: str) -> str:
-    """The checkpoint without a monitor: last.ckpt, every epoch."""
+    """The checkpoint without a monitor: last.ckpt (a link into the run's folder), every epoch."""
     return f"""\
-    - class_path: lightning.pytorch.callbacks.ModelCheckpoint
+    - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
         filename: last
@@ -302,11 +302,11 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
 {summary}
 # Train it first: walkdiff fit --config <this file>
 """
-        + _trainer(directory, 40, "00:00:12:00")
+        + _trainer(directory, 40, "00:01:00:00")
         + _logger(name, f"evaluator_{name}", log_model=False)
         + f"""\
   callbacks:
-    - class_path: lightning.pytorch.callbacks.ModelCheckpoint
+    - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
         filename: best
@@ -344,7 +344,7 @@ def _generator_config(name: str, folder: Path, summary: str, data: dict, content
 # Train the evaluator first (walkdiff fit --config evaluator_{name}.yaml, beside this file): the
 # metrics callback reads its last checkpoint.
 """
-        + _trainer(directory, 140, "00:00:55:00", validate_every=5)
+        + _trainer(directory, 140, "00:04:00:00", validate_every=5)
         + _logger(name, name, log_model=True)
         + f"""\
   callbacks:
@@ -356,7 +356,7 @@ def _generator_config(name: str, folder: Path, summary: str, data: dict, content
         every_n_epochs: 5
         num_samples: 128
         sampler: ddpm
-    - class_path: lightning.pytorch.callbacks.ModelCheckpoint
+    - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
         filename: "best-{{epoch:04d}}"

@@ -1,8 +1,11 @@
-"""MLflow plumbing: the tracking URI, a reachability check, and logging files into the active run."""
+"""MLflow plumbing: the tracking URI, a reachability check, logging files into the active run, and closing
+the runs of processes that were killed."""
 
 from __future__ import annotations
 
 import os
+import socket
+import sys
 import tempfile
 from pathlib import Path
 
@@ -71,3 +74,40 @@ def log_text(logger, text: str, artifact_file: str) -> None:
         path.write_text(text)
         folder = str(Path(artifact_file).parent)
         logger.experiment.log_artifact(run_id, str(path), None if folder == "." else folder)
+
+
+PID_TAG, HOST_TAG = "walkdiff.pid", "walkdiff.host"
+
+
+def tag_process(client, run_id: str) -> None:
+    """Record which process on which host writes a run, so that a later start can tell it was killed."""
+    client.set_tag(run_id, PID_TAG, str(os.getpid()))
+    client.set_tag(run_id, HOST_TAG, socket.gethostname())
+
+
+def close_dead_runs(client, experiment_id: str) -> list[str]:
+    """Mark KILLED the runs of an experiment still RUNNING whose process on this host has died.
+
+    A `fit` killed with SIGKILL (or by the out-of-memory killer) cannot close its run; the next `fit`
+    into the same experiment does. Runs of other hosts, or without the PID tag, are left alone: whether
+    their process lives cannot be told from here. Returns the closed run ids.
+    """
+    from walkdiff.files import process_alive
+
+    host = socket.gethostname()
+    closed = []
+    runs = client.search_runs([experiment_id], filter_string="attributes.status = 'RUNNING'")
+    for run in runs:
+        tags = run.data.tags
+        pid = tags.get(PID_TAG, "")
+        if tags.get(HOST_TAG) != host or not pid.isdigit() or process_alive(int(pid)):
+            continue
+        client.set_terminated(run.info.run_id, "KILLED")
+        closed.append(run.info.run_id)
+    if closed:
+        print(
+            f"walkdiff: marked {len(closed)} MLflow run(s) KILLED whose process on {host} had died: "
+            + ", ".join(closed),
+            file=sys.stderr,
+        )
+    return closed

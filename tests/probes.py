@@ -1,0 +1,93 @@
+"""Callbacks and configs the training tests put into real `walkdiff fit` runs (importable by class path)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import lightning as L
+
+
+class SleepEachBatch(L.Callback):
+    """Stands for a slower or busier machine: every training batch takes `seconds` longer."""
+
+    def __init__(self, seconds: float):
+        self.seconds = seconds
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        time.sleep(self.seconds)
+
+
+class RecordSteps(L.Callback):
+    """Writes to `path` the global step at the start and end of training, the validation losses and the
+    generator's last learning rate."""
+
+    def __init__(self, path: str):
+        self.path = Path(path)
+        self.record: dict = {"val_loss": []}
+
+    def on_train_start(self, trainer, pl_module):
+        self.record["first_step"] = trainer.global_step
+        self.record["first_epoch"] = trainer.current_epoch
+
+    def on_validation_epoch_end(self, trainer, pl_module):
+        if not trainer.sanity_checking:
+            self.record["val_loss"].append(float(trainer.callback_metrics["val/loss"]))
+
+    def on_train_end(self, trainer, pl_module):
+        lr = trainer.optimizers[0].param_groups[0]["lr"]
+        self.record |= {"last_step": trainer.global_step, "epochs": trainer.current_epoch, "lr": lr}
+        self.path.write_text(json.dumps(self.record))
+
+
+def tiny_fit_config(root: Path, name: str, *, epochs: int, batches: int, callbacks: list[dict]) -> str:
+    """A `walkdiff fit` config of a tiny StyledMotionDiffusion on the synthetic data in `root`: an MLflow
+    sqlite store and checkpoints (`RunCheckpoint`, last every epoch) under the working directory."""
+    extra = "".join(f"    - {json.dumps(c)}\n" for c in callbacks)
+    return f"""\
+seed_everything: 3
+trainer:
+  accelerator: cpu
+  devices: 1
+  max_epochs: {epochs}
+  max_time: "00:00:10:00"
+  limit_train_batches: {batches}
+  limit_val_batches: 1
+  num_sanity_val_steps: 0
+  log_every_n_steps: 1
+  enable_progress_bar: false
+  enable_model_summary: false
+  logger:
+    class_path: lightning.pytorch.loggers.MLFlowLogger
+    init_args:
+      experiment_name: walkdiff-test
+      run_name: {name}
+      tracking_uri: sqlite:///mlruns/mlflow.db
+      artifact_location: mlruns/artifacts
+  callbacks:
+    - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
+      init_args:
+        dirpath: checkpoints/{name}
+        filename: last
+        save_top_k: 1
+        save_on_train_epoch_end: true
+{extra}model:
+  class_path: walkdiff.models.styled_ddpm.StyledMotionDiffusion
+  init_args:
+    d_model: 32
+    layers: 1
+    heads: 2
+    lambda_adv: 0.05
+    adv_warmup_batches: 2
+    lr_warmup_batches: 2
+data:
+  class_path: walkdiff.data.datamodule.MotionDataModule
+  init_args:
+    root: {root}
+    cache_dir: {root / "cache"}
+    window: 24
+    batch_size: 8
+    num_workers: 0
+    preprocess_workers: 1
+"""
