@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 from walkdiff.errors import WalkdiffError
@@ -34,12 +35,12 @@ def lightning_cli(args: list[str] | None) -> None:
         """MLflow's sqlite URI has no log_dir: the resolved config goes into the run instead."""
 
         def save_config(self, trainer, pl_module, stage) -> None:
-            from walkdiff.tracking import log_text
+            from walkdiff.tracking import log_text, run_params
 
             text = self.parser.dump(self.config, skip_none=False)
             log_text(trainer.logger, text, "config.yaml")
             if trainer.logger is not None:
-                trainer.logger.log_hyperparams(self.config.as_flat())
+                trainer.logger.log_hyperparams(run_params(self.config.as_dict()))
 
     class WalkdiffCLI(LightningCLI):
         def add_arguments_to_parser(self, parser) -> None:
@@ -63,6 +64,9 @@ def lightning_cli(args: list[str] | None) -> None:
             if uri:
                 logger.init_args.tracking_uri = uri = absolute_uri(uri)
                 check_tracking_uri(uri)
+            name = getattr(getattr(logger, "init_args", None), "run_name", None)
+            if name:  # one name per run in the UI: the config's, and when it started
+                logger.init_args.run_name = f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
 
     import lightning as L
 
@@ -80,21 +84,16 @@ def lightning_cli(args: list[str] | None) -> None:
 
 
 def open_run(trainer) -> None:
-    """Before `fit`: close the runs of killed processes in this experiment, and tag ours with PID and host.
+    """Before `fit`: what walkdiff records about every MLflow run (`walkdiff.callbacks.tracking`).
 
     Lightning closes its run as FAILED on an exception, Ctrl-C or SIGTERM; after SIGKILL nothing can, so
     the next `fit` into the experiment does (`walkdiff.tracking.close_dead_runs`).
     """
-    from lightning.pytorch.utilities.rank_zero import rank_zero_only
-
     from walkdiff.callbacks.checkpoints import mlflow_logger
-    from walkdiff.tracking import close_dead_runs, tag_process
+    from walkdiff.callbacks.tracking import RunTracking
 
-    logger = mlflow_logger(trainer)
-    if logger is None or rank_zero_only.rank != 0:  # other DDP ranks have no run of their own
-        return
-    tag_process(logger.experiment, logger.run_id)
-    close_dead_runs(logger.experiment, logger.experiment_id)
+    if mlflow_logger(trainer) is not None and not any(isinstance(c, RunTracking) for c in trainer.callbacks):
+        trainer.callbacks.append(RunTracking())
 
 
 def report_fit(trainer) -> None:

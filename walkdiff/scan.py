@@ -281,7 +281,8 @@ def _last_checkpoint(directory: str) -> str:
 """
 
 
-def _logger(name: str, run: str, log_model: bool) -> str:
+def _logger(name: str, run: str) -> str:
+    """MLflow, its best and last checkpoints logged by walkdiff's RunTracking (hence no log_model)."""
     return f"""\
   logger:
     class_path: lightning.pytorch.loggers.MLFlowLogger
@@ -290,7 +291,7 @@ def _logger(name: str, run: str, log_model: bool) -> str:
       run_name: {_yaml(run)}
       tracking_uri: sqlite:///mlruns/mlflow.db
       artifact_location: mlruns/artifacts
-""" + ("      log_model: true\n" if log_model else "")
+"""
 
 
 def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
@@ -303,7 +304,7 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
 # Train it first: walkdiff fit --config <this file>
 """
         + _trainer(directory, 40, "00:01:00:00")
-        + _logger(name, f"evaluator_{name}", log_model=False)
+        + _logger(name, f"evaluator_{name}")
         + f"""\
   callbacks:
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
@@ -345,7 +346,7 @@ def _generator_config(name: str, folder: Path, summary: str, data: dict, content
 # metrics callback reads its last checkpoint.
 """
         + _trainer(directory, 140, "00:04:00:00", validate_every=5)
-        + _logger(name, name, log_model=True)
+        + _logger(name, name)
         + f"""\
   callbacks:
     # FMD, style accuracy, diversity and foot skating of generated samples; placed before the

@@ -111,3 +111,30 @@ def close_dead_runs(client, experiment_id: str) -> list[str]:
             file=sys.stderr,
         )
     return closed
+
+
+def run_params(config: dict) -> dict[str, str]:
+    """One readable MLflow parameter per setting of a fit config: every argument of the model and data
+    (`model.lambda_adv`, `data.window`), the trainer settings the config changes from Lightning's
+    defaults (`trainer.max_epochs`), the seed, and the model and data classes. Callbacks and the logger
+    are left to the run's config.yaml; values that are not plain (lists, mappings) are written as JSON."""
+    import inspect
+    import json
+
+    from lightning.pytorch import Trainer
+
+    params: dict[str, object] = {"seed_everything": config.get("seed_everything")}
+    for section in ("model", "data"):
+        node = config.get(section) or {}
+        params[section] = str(node.get("class_path", "")).rsplit(".", 1)[-1]
+        for key, value in (node.get("init_args") or {}).items():
+            if key != "data_spec":  # linked from the data module, not a setting
+                params[f"{section}.{key}"] = value
+    defaults = {k: p.default for k, p in inspect.signature(Trainer).parameters.items()}
+    for key, value in (config.get("trainer") or {}).items():
+        if key not in ("callbacks", "logger", "plugins") and value != defaults.get(key, object()):
+            params[f"trainer.{key}"] = value
+    return {
+        key: value if isinstance(value, str | int | float | bool) or value is None else json.dumps(value)
+        for key, value in params.items()
+    }

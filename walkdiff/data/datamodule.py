@@ -153,7 +153,7 @@ class MotionDataModule(WindowLoaders):
         preprocess_workers: int = 2,
     ):
         super().__init__()
-        self.save_hyperparameters()
+        self.save_hyperparameters(logger=False)  # the run logs its config (run_params)
         if window < 2 or stride < 1:
             raise WalkdiffError(f"data.window must be >= 2 and data.stride >= 1, got {window} and {stride}")
         self.source = open_source(

@@ -290,7 +290,7 @@ class SpeechDataModule(WindowLoaders):
         profile: dict | None = None,
     ):
         super().__init__()
-        self.save_hyperparameters()
+        self.save_hyperparameters(logger=False)  # the run logs its config (run_params)
         if rotation not in ROTATIONS:
             raise WalkdiffError(f"data.rotation must be one of {', '.join(ROTATIONS)}, got {rotation!r}")
         if window < 2 or stride < 1 or past < 0 or lookahead < 0:

@@ -46,7 +46,7 @@ class ActionEvaluator(PositionEvaluator):
         weight_decay: float = 0.0,
     ):
         super().__init__(data_spec)
-        self.save_hyperparameters(ignore=["data_spec"])
+        self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
         self.hparams["data_spec"] = spec = self.spec
         num_actions = len(spec["contents"])
         self.gru = nn.GRU(3 * spec["num_joints"], hidden, layers, batch_first=True)

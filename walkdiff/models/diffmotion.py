@@ -228,7 +228,7 @@ class DiffMotion(AutoregressiveDiffusion):
         grad_clip: float = 1.0,
     ):
         super().__init__(data_spec)
-        self.save_hyperparameters(ignore=["data_spec"])
+        self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
         self.hparams["data_spec"] = spec = self.spec
         self.window = spec["past"] + 1 + spec["lookahead"]
         self.audio_normalizer = Normalizer(spec["audio_dim"])

@@ -130,7 +130,7 @@ class MotionEvaluator(PositionEvaluator):
         weight_decay: float = 1e-2,
     ):
         super().__init__(data_spec)
-        self.save_hyperparameters(ignore=["data_spec"])
+        self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
         self.hparams["data_spec"] = spec = self.spec
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
 

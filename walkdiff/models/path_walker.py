@@ -74,7 +74,7 @@ class PathWalker(AutoregressiveDiffusion):
         grad_clip: float = 1.0,
     ):
         super().__init__(data_spec)
-        self.save_hyperparameters(ignore=["data_spec"])
+        self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
         self.hparams["data_spec"] = spec = self.spec
         if lookahead < 0 or control_every < 1:
             raise WalkdiffError(

@@ -96,7 +96,7 @@ class StyledMotionDiffusion(MotionModule):
         distilled_steps: int = 0,  # set by `walkdiff distill`: DDIM over this many steps takes jumps
     ):
         super().__init__(data_spec)
-        self.save_hyperparameters(ignore=["data_spec"])
+        self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
         self.hparams["data_spec"] = spec = self.spec
         self.automatic_optimization = False
 
