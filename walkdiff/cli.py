@@ -16,6 +16,7 @@ SAMPLER_HELP = (
 )
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
+PREVIEW_HELP = "seconds of each clip the GIF preview shows, from its start (default 20)"
 PROFILE_HELP = (
     "YAML/JSON of skeleton profile overrides (root, left_heel, left_toe, right_heel, right_toe, up, forward, "
     "units, body_height, contact_speed, contact_height, mirror_pairs); the rest is found from the file"
@@ -218,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="keep the height as sampled (default: planted feet lifted or lowered onto the floor)",
         )  # fmt: skip
         p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
+        p.add_argument("--preview-seconds", type=float, default=20.0, help=PREVIEW_HELP)
         p.add_argument("--overwrite", action="store_true", help="replace existing output files")
         p.add_argument("--device", default="cpu", help="cpu or cuda")
 
@@ -239,6 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=int, default=1, help="samples generated together (default 1)")
+    p.add_argument("--preview-seconds", type=float, default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
@@ -249,6 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=None, help="m/s (default: the file's, or the style's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
+    p.add_argument("--preview-seconds", type=float, default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     # Its own verb: `evaluate` is the walking protocol (an evaluator network, FMD, style accuracy);
@@ -451,6 +455,8 @@ def run_command(args: argparse.Namespace) -> int:
         del options["command"]
         report = getattr(generation, args.command)(**options)
         print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in report["timing"].items()))
+        if report["preview"] is not None:
+            print(f"preview: {report['preview']['note']}")
     elif args.command in ("gesture", "evaluate-gesture"):
         from walkdiff import gesture
         from walkdiff.files import strict_json

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from tqdm import tqdm
 
@@ -29,3 +29,17 @@ def progress(
         mininterval=0.1 if terminal else 10.0,
         disable=os.environ.get("WALKDIFF_PROGRESS", "1") == "0",
     )
+
+
+def step_hook(bar: tqdm, runs: int = 1) -> Callable[[int, int], None]:
+    """A sampler's `progress` hook, hook(steps_done, steps_total), that advances `bar` one step at a time
+    over `runs` sampler runs: the bar's total, `runs` times one run's steps, is set at the first step, so
+    a caller need not know how many steps its sampler takes."""
+
+    def hook(done: int, total: int) -> None:
+        if bar.total is None:
+            bar.total = runs * total
+            bar.refresh()
+        bar.update(1)
+
+    return hook

@@ -1,0 +1,54 @@
+"""Memory estimates of long outputs, checked before any work.
+
+A command's memory grows with the frames it makes (features, decoded rotations, BVH text a chunk at a
+time), so a frame count from `--frames`, a path's length or a WAV's duration is turned into an estimate
+and refused above the limit with the option that asked for it. The per-frame costs are measured by
+`walkdiff bench memory` (peak RSS of the real commands); the limit is 4 GB unless
+WALKDIFF_MEMORY_LIMIT_GB says otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+from walkdiff.errors import WalkdiffError
+
+LIMIT_ENV = "WALKDIFF_MEMORY_LIMIT_GB"
+DEFAULT_LIMIT_GB = 4.0
+BASE_BYTES = 700e6  # Python, torch and a model loaded: a 300-frame `sample` peaks at ~530 MB
+
+# Bytes per generated frame and clip, measured with `walkdiff bench memory` (peak RSS slope between
+# a short and a long run, rounded up): the Xia generator (31 joints), the path walker, DiffMotion.
+SAMPLE_BYTES_PER_FRAME = 12_000
+WALK_BYTES_PER_FRAME = 12_000
+GESTURE_BYTES_PER_FRAME = 12_000
+
+
+def memory_limit() -> float:
+    """The limit in bytes: WALKDIFF_MEMORY_LIMIT_GB, or 4 GB."""
+    text = os.environ.get(LIMIT_ENV)
+    if text is None:
+        return DEFAULT_LIMIT_GB * 1e9
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and value > 0):
+        raise WalkdiffError(f"{LIMIT_ENV}: expected a positive number of gigabytes, got {text!r}")
+    return value * 1e9
+
+
+def check_frames(option: str, frames: int, bytes_per_frame: float, clips: int = 1) -> float:
+    """Refuse `clips` clips of `frames` frames whose estimated peak memory is above the limit; return the
+    estimate in bytes. `option` names what set the frame count (--frames, --path, --audio)."""
+    estimate = BASE_BYTES + frames * clips * bytes_per_frame
+    limit = memory_limit()
+    if estimate > limit:
+        most = max(0, int((limit - BASE_BYTES) / (bytes_per_frame * clips)))
+        raise WalkdiffError(
+            f"{option}: {frames} frames{f' x {clips} clips' if clips > 1 else ''} would need about "
+            f"{estimate / 1e9:.1f} GB of memory, above the limit of {limit / 1e9:.1f} GB (at most {most} "
+            f"frames); make shorter clips, or raise the limit with {LIMIT_ENV}"
+        )
+    return estimate
