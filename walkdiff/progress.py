@@ -14,9 +14,15 @@ from tqdm import tqdm
 
 
 def progress(
-    iterable: Iterable | None = None, *, total: int | None = None, desc: str, unit: str = "it"
+    iterable: Iterable | None = None,
+    *,
+    total: int | None = None,
+    desc: str,
+    unit: str = "it",
+    show: bool = True,
 ) -> tqdm:
-    """A bar over `iterable` (or updated by hand up to `total`): `for x in progress(xs, desc="clips")`."""
+    """A bar over `iterable` (or updated by hand up to `total`): `for x in progress(xs, desc="clips")`.
+    `show=False` hides it (work too short to need one)."""
     terminal = sys.stderr.isatty()
     return tqdm(
         iterable,
@@ -27,7 +33,7 @@ def progress(
         dynamic_ncols=True,
         leave=terminal,
         mininterval=0.1 if terminal else 10.0,
-        disable=os.environ.get("WALKDIFF_PROGRESS", "1") == "0",
+        disable=not show or os.environ.get("WALKDIFF_PROGRESS", "1") == "0",
     )
 
 
