@@ -637,6 +637,16 @@ def _strengths(text: str) -> tuple[float, ...]:
     return values
 
 
+def _frame_counts(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise WalkdiffError(f"--frames: expected comma-separated frame counts >= 1, got {text!r}")
+    return values
+
+
 def run(args) -> None:
     if args.what == "protocol":
         from walkdiff.protocol import bench_protocol
@@ -662,7 +672,80 @@ def run(args) -> None:
         )  # fmt: skip
     elif args.what == "gesture":
         bench_gesture(args.out, args.ckpt, args.frames)
+    elif args.what == "memory":
+        bench_memory(args.out, args.ckpt, _frame_counts(args.frames))
     elif args.what == "walk":
         from walkdiff.walk import bench_walk
 
         print(json.dumps(strict_json(bench_walk(args.out, args.ckpt, args.evaluator, args.seed)), indent=2))
+
+
+# ---------------------------------------------------------------- memory
+
+
+def peak_rss(command: list[str], env: dict | None = None) -> tuple[int, float, int]:
+    """Run `command` in a subprocess: (its exit code, its peak resident memory in bytes, seconds).
+
+    os.wait4 gives that one child's rusage (ru_maxrss, in KiB on Linux), where RUSAGE_CHILDREN would
+    give the largest of all children waited for so far.
+    """
+    import subprocess
+
+    started = time.perf_counter()
+    child = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    stderr = child.stderr.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode != 0:
+        raise WalkdiffError(
+            f"benchmark run failed ({child.returncode}): {' '.join(command)}\n{stderr.decode()[-2000:]}"
+        )
+    return child.returncode, usage.ru_maxrss * 1024, time.perf_counter() - started
+
+
+def bench_memory(out: str, ckpt: str, frames: tuple[int, ...] = (300, 10_000, 100_000)) -> dict:
+    """Peak memory of `walkdiff sample --frames N --num 1` (GIF included) for each N, each in its own
+    process, beside the estimate `walkdiff.memory` refuses frame counts by.
+
+    The windows are denoised with DDIM over one step: memory does not depend on the sampler or its steps
+    (one window is denoised at a time), and 100,000 frames of DDPM would take hours.
+    """
+    import sys
+
+    from walkdiff.generation import load_generator
+    from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames, memory_limit
+    from walkdiff.progress import progress
+
+    style = load_generator(ckpt).spec["styles"][0]
+    env = os.environ | {"WALKDIFF_PROGRESS": "0"}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in progress(frames, desc="bench memory", unit="run"):
+            estimate = check_frames("--frames", n, SAMPLE_BYTES_PER_FRAME)
+            command = [
+                sys.executable, "-m", "walkdiff.cli", "sample", "--ckpt", str(ckpt), "--out", f"{tmp}/{n}",
+                "--style", style, "--num", "1", "--frames", str(n), "--sampler", "ddim", "--steps", "1",
+            ]  # fmt: skip
+            _, peak, seconds = peak_rss(command, env)
+            manifest = json.loads((Path(tmp) / str(n) / "manifest.json").read_text())
+            gif = next((Path(tmp) / str(n)).glob("*.gif"))
+            rows.append(
+                {
+                    "command": f"walkdiff sample --frames {n} --num 1 --sampler ddim --steps 1",
+                    "frames": n,
+                    "peak_rss_mb": round(peak / 1e6, 1),
+                    "estimate_mb": round(estimate / 1e6, 1),
+                    "seconds": round(seconds, 1),
+                    "gif_mb": round(gif.stat().st_size / 1e6, 2),
+                    "preview": manifest["preview"]["note"],
+                }
+            )
+    result = {
+        "benchmark": "memory",
+        "ckpt": ckpt,
+        "limit_mb": round(memory_limit() / 1e6),
+        "sample": rows,
+        "machine": machine(),
+    }
+    report(out, result)
+    return result

@@ -302,6 +302,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
     b.add_argument("--frames", type=int, default=40, help="frames timed per setting (default 40)")
+    b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument("--frames", default="300,10000,100000", help="frame counts (default 300,10000,100000)")
     b = bench.add_parser("walk", help="path-following error and style accuracy of walks along test paths")
     b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")

@@ -78,6 +78,9 @@ class PreviewCap:
         }
 
 
+DEFAULT_PREVIEW = PreviewCap()
+
+
 def gif_step(fps: float, max_fps: float) -> int:
     """Every how many frames of a clip at `fps` a GIF playing at most `max_fps` shows one."""
     return math.ceil(fps / max_fps - 1e-9)
@@ -95,7 +98,7 @@ def render_gif(
     max_fps: float = 30,
     size: tuple[int, int] = (320, 320),
     trail: bool = True,
-    cap: PreviewCap = PreviewCap(),
+    cap: PreviewCap = DEFAULT_PREVIEW,
 ) -> Path:
     """Write an animated GIF of one or more clips side by side and return its path.
 
