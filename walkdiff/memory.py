@@ -18,9 +18,10 @@ LIMIT_ENV = "WALKDIFF_MEMORY_LIMIT_GB"
 DEFAULT_LIMIT_GB = 4.0
 BASE_BYTES = 700e6  # Python, torch and a model loaded: a 300-frame `sample` peaks at ~530 MB
 
-# Bytes per generated frame and clip, measured with `walkdiff bench memory` (peak RSS slope between
-# a short and a long run, rounded up): the Xia generator (31 joints), the path walker, DiffMotion.
-SAMPLE_BYTES_PER_FRAME = 12_000
+# Bytes per generated frame and clip, from `walkdiff bench memory` (the slope of peak RSS between a short
+# and a long run, rounded up): the Xia generator (31 joints) measured 6.4 kB (1231 MB at 100,000 frames,
+# 552 MB at 300, GIF preview included); the path walker and DiffMotion as below.
+SAMPLE_BYTES_PER_FRAME = 8_000
 WALK_BYTES_PER_FRAME = 12_000
 GESTURE_BYTES_PER_FRAME = 12_000
 
