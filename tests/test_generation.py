@@ -423,8 +423,8 @@ def test_frames_beyond_the_memory_estimate_are_refused_before_any_work(ckpt, tmp
     args = ["sample", "--ckpt", str(ckpt), "--style", "old", "--num", "2", "--out", str(out)]
     assert main([*args, "--frames", "1000000"]) == 1
     err = capsys.readouterr().err
-    assert "--frames: 1000000 frames x 2 clips would need about 16.7 GB" in err
-    assert "above the limit of 1.5 GB (at most 50000 frames)" in err and "WALKDIFF_MEMORY_LIMIT_GB" in err
+    assert "--frames: 1000000 frames x 2 clips would need about 16.70 GB" in err
+    assert "above the limit of 1.50 GB (at most 50000 frames)" in err and "WALKDIFF_MEMORY_LIMIT_GB" in err
     assert not out.exists()
     assert main([*args, "--frames", "30", "--no-gif", "--sampler", "ddim", "--steps", "1"]) == 0
     monkeypatch.setenv("WALKDIFF_MEMORY_LIMIT_GB", "lots")

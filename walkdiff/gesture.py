@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import inspect
 import itertools
+import math
 import tempfile
 import time
 from pathlib import Path
@@ -27,7 +28,7 @@ import numpy as np
 import torch
 from scipy.signal import argrelmin
 
-from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav
+from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import output_folder, write_json
 from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
@@ -121,8 +122,11 @@ def gesture(
     if taken and not overwrite:
         raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}; pass --overwrite to replace them")
     model = load_model(ckpt)
+    # From the file's header, so a WAV too long is refused before its samples are read; one frame per hop
+    # and one more, as log_mel's centred frames.
+    frames = math.floor(wav_seconds(audio) * model.spec["fps"]) + 1
+    check_frames("--audio", frames, GESTURE_BYTES_PER_FRAME, streams)
     samples, rate = read_wav(audio)
-    check_frames("--audio", round(len(samples) / rate * model.spec["fps"]), GESTURE_BYTES_PER_FRAME, streams)
     mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
     start = time.perf_counter()
     clips = synthesize(model, mel, streams, seed, smooth)

@@ -49,7 +49,7 @@ def check_frames(option: str, frames: int, bytes_per_frame: float, clips: int = 
         most = max(0, int((limit - BASE_BYTES) / (bytes_per_frame * clips)))
         raise WalkdiffError(
             f"{option}: {frames} frames{f' x {clips} clips' if clips > 1 else ''} would need about "
-            f"{estimate / 1e9:.1f} GB of memory, above the limit of {limit / 1e9:.1f} GB (at most {most} "
+            f"{estimate / 1e9:.2f} GB of memory, above the limit of {limit / 1e9:.2f} GB (at most {most} "
             f"frames); make shorter clips, or raise the limit with {LIMIT_ENV}"
         )
     return estimate
