@@ -230,8 +230,9 @@ def generate_long(
     with a progress bar over windows x denoising steps."""
     window = model.spec["window"]
     overlap, blend = resolve_windows(window, overlap, blend)
+    windows = len(window_plan(frames, window, overlap))  # a bad length fails before the bar opens
     bar = progress(desc="sampling", unit="step")
-    hook = step_hook(bar, len(window_plan(frames, window, overlap)))
+    hook = step_hook(bar, windows)
 
     def denoise(start: int, stop: int, inpaint: Known | None) -> torch.Tensor:
         return model.generate(
@@ -287,8 +288,9 @@ def restyle(
     window = model.spec["window"]
     overlap, blend = resolve_windows(window, overlap, blend)
     batch, frames, dim = source.shape
+    windows = len(window_plan(frames, window, overlap))  # a bad length fails before the bar opens
     bar = progress(desc="transfer", unit="step")
-    hook = step_hook(bar, len(window_plan(frames, window, overlap)))
+    hook = step_hook(bar, windows)
     root = torch.zeros(source.shape[-1], dtype=torch.bool)
     root[layout.root_vel] = root[layout.heading_vel] = True
     device = diffusion.betas.device
