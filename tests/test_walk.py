@@ -222,7 +222,7 @@ def test_a_path_too_long_for_memory_is_refused_before_walking(trained, tmp_path,
     assert main(args) == 1
     err = capsys.readouterr().err
     assert re.search(
-        r"--path: 250000\d frames would need about 30.70 GB of memory, above the limit of 4.00 GB",
+        r"--path: 250000\d frames would need about 15.70 GB of memory, above the limit of 4.00 GB",
         err,
     )
     assert "walking" not in err and not list(out.glob("*.bvh"))

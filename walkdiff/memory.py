@@ -19,11 +19,13 @@ DEFAULT_LIMIT_GB = 4.0
 BASE_BYTES = 700e6  # Python, torch and a model loaded: a 300-frame `sample` peaks at ~530 MB
 
 # Bytes per generated frame and clip, from `walkdiff bench memory` (the slope of peak RSS between a short
-# and a long run, rounded up): the Xia generator (31 joints) measured 6.4 kB (1231 MB at 100,000 frames,
-# 552 MB at 300, GIF preview included); the path walker and DiffMotion as below.
+# and a long run, both with a full 20-s preview where there is one, rounded up), on the shapes of
+# conf/xia_cpu.yaml, conf/walk_xia.yaml and conf/diffmotion_zeggs.yaml:
+# sample 6.4 kB (552 MB at 300 frames, 1231 MB at 100,000), walk 4.1 kB (610 MB at 901, 636 MB at 7,201),
+# gesture 19.8 kB (703 MB at 600, 786 MB at 4,800: audio windows and the mel spectrogram per frame).
 SAMPLE_BYTES_PER_FRAME = 8_000
-WALK_BYTES_PER_FRAME = 12_000
-GESTURE_BYTES_PER_FRAME = 12_000
+WALK_BYTES_PER_FRAME = 6_000
+GESTURE_BYTES_PER_FRAME = 24_000
 
 
 def memory_limit() -> float:
