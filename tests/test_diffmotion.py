@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 import synthetic
 import torch
+from PIL import Image
 from test_speech import write_take
 
+from walkdiff import memory
 from walkdiff.cli import main
 from walkdiff.data.speech import SpeechDataModule
 from walkdiff.errors import WalkdiffError
@@ -160,6 +162,29 @@ def test_gesture_command_writes_bvh_on_the_full_skeleton(trained, tmp_path):
     before = bvhs[0].read_text()
     assert main(again) == 1 and bvhs[0].read_text() == before
     assert main([*again, "--overwrite"]) == 0 and bvhs[0].read_text() != before  # not smoothed this time
+
+
+def test_gesture_states_its_preview_and_refuses_audio_too_long_for_memory(
+    trained, tmp_path, capsys, monkeypatch
+):
+    ckpt, folder = trained
+    args = ["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "b.wav"), "--out", str(tmp_path / "out")]
+    assert main([*args, "--preview-seconds", "2", "--streams", "2"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["preview"] == {
+        "seconds": 2.0,
+        "of_seconds": 8.05,
+        "capped": True,
+        "note": "first 2 s of 8.05 s",
+    }
+    with Image.open(tmp_path / "out" / "b.gif") as gif:
+        assert gif.n_frames == 40  # 2 s at 20 fps, both streams side by side
+    room = (memory.BASE_BYTES + 100 * memory.GESTURE_BYTES_PER_FRAME) / 1e9  # 100 frames of one stream
+    monkeypatch.setenv("WALKDIFF_MEMORY_LIMIT_GB", str(room))
+    assert main([*args[:-1], str(tmp_path / "refused")]) == 1
+    err = capsys.readouterr().err
+    assert "--audio: 161 frames would need about" in err and "(at most 100 frames)" in err  # 8.05 s
+    assert not (tmp_path / "refused").exists()
 
 
 def test_evaluate_gesture_report(trained, tmp_path):

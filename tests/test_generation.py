@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import synthetic
 import torch
+from PIL import Image
 
 from walkdiff.cli import main
 from walkdiff.data.datamodule import MotionDataModule
@@ -389,3 +390,57 @@ def test_outputs_in_the_way_and_missing_devices_are_named(ckpt, tmp_path, capsys
     if not torch.cuda.is_available():
         assert main([*args, "--out", str(tmp_path / "out"), "--device", "cuda"]) == 1
         assert "--device cuda: this torch build sees no CUDA GPU" in capsys.readouterr().err
+
+
+def test_a_long_sample_gets_a_capped_preview_that_the_manifest_and_console_state(ckpt, tmp_path, capsys):
+    out = tmp_path / "long"
+    args = ["sample", "--ckpt", str(ckpt), "--style", "angry", "--num", "1", "--frames", "120",
+            "--sampler", "ddim", "--steps", "1", "--preview-seconds", "1", "--out", str(out)]  # fmt: skip
+    assert main(args) == 0
+    assert read_bvh(out / "angry_walk_000.bvh").num_frames == 120  # the clip itself is whole
+    with Image.open(out / "angry_walk_000.gif") as gif:
+        assert gif.n_frames == 30  # 1 s of the 4 s at 30 fps
+    preview = json.loads((out / "manifest.json").read_text())["preview"]
+    assert preview == {"seconds": 1.0, "of_seconds": 4.0, "capped": True, "note": "first 1 s of 4 s"}
+    assert "preview: first 1 s of 4 s" in capsys.readouterr().out
+    assert main([*args, "--overwrite", "--preview-seconds", "nan"]) == 1
+    assert "--preview-seconds must be a positive number" in capsys.readouterr().err
+
+
+def test_sample_shows_progress_on_stderr_unless_turned_off(ckpt, tmp_path, capsys, monkeypatch):
+    args = ["sample", "--ckpt", str(ckpt), "--style", "old", "--num", "1", "--frames", "40", "--no-gif",
+            "--sampler", "ddim", "--steps", "3"]  # fmt: skip
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "sampling" in err and "0/9 [" in err  # 3 windows x 3 steps, with an ETA once started
+    monkeypatch.setenv("WALKDIFF_PROGRESS", "0")
+    assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    assert "sampling" not in capsys.readouterr().err
+
+
+def test_frames_beyond_the_memory_estimate_are_refused_before_any_work(ckpt, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("WALKDIFF_MEMORY_LIMIT_GB", "1.5")
+    out = tmp_path / "huge"
+    args = ["sample", "--ckpt", str(ckpt), "--style", "old", "--num", "2", "--out", str(out)]
+    assert main([*args, "--frames", "1000000"]) == 1
+    err = capsys.readouterr().err
+    assert "--frames: 1000000 frames x 2 clips would need about 16.70 GB" in err
+    assert "above the limit of 1.50 GB (at most 50000 frames)" in err and "WALKDIFF_MEMORY_LIMIT_GB" in err
+    assert not out.exists()
+    assert main([*args, "--frames", "30", "--no-gif", "--sampler", "ddim", "--steps", "1"]) == 0
+    monkeypatch.setenv("WALKDIFF_MEMORY_LIMIT_GB", "lots")
+    assert main([*args, "--frames", "30", "--overwrite"]) == 1
+    assert (
+        "WALKDIFF_MEMORY_LIMIT_GB: expected a positive number of gigabytes, got 'lots'"
+        in capsys.readouterr().err
+    )
+
+
+def test_memory_benchmark_records_peak_rss_per_frame_count(ckpt, tmp_path):
+    from walkdiff.bench import bench_memory
+
+    result = bench_memory(str(tmp_path / "mem.json"), str(ckpt), frames=(60,))
+    (row,) = json.loads((tmp_path / "mem.json").read_text())["sample"]
+    assert row == result["sample"][0] and row["frames"] == 60
+    assert 100 < row["peak_rss_mb"] < row["estimate_mb"]  # a Python with torch, under the estimate
+    assert row["preview"] == "all 2 s" and row["gif_mb"] > 0

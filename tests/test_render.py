@@ -235,3 +235,27 @@ def test_mp4_has_every_frame_and_the_sound_for_as_long(tmp_path):
         assert float(sound.duration * sound.time_base) == pytest.approx(1.0, abs=0.07)  # AAC frames of 64 ms
         assert sum(1 for _ in container.decode(video=0)) == 25
     assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
+
+
+def test_a_long_clip_gets_a_preview_of_its_first_seconds(tmp_path):
+    """20 min at 60 fps: the GIF shows the first 2 s (at 30 fps), the same frames a short clip's does."""
+    cap = render.PreviewCap(seconds=2)
+    long_gif = render_gif(tmp_path / "long.gif", walker(72_000), PARENTS, 60, cap=cap)
+    short_gif = render_gif(tmp_path / "short.gif", walker(120), PARENTS, 60)
+    assert long_gif.read_bytes() == short_gif.read_bytes()
+    assert len(gif_frames(long_gif)[0]) == 60
+    assert cap.describe(72_000, 60) == {
+        "seconds": 2.0, "of_seconds": 1200.0, "capped": True, "note": "first 2 s of 1200 s"
+    }  # fmt: skip
+    assert cap.describe(90, 60)["note"] == "all 1.5 s" and not cap.describe(90, 60)["capped"]
+
+
+def test_the_pixel_budget_shortens_previews_of_many_panels(tmp_path):
+    cap = render.PreviewCap(seconds=20, pixels=10 * 3 * 64 * 64)  # 10 GIF frames of 3 panels
+    assert cap.frames(6000, 60, panels=3, size=(64, 64)) == 20  # 10 GIF frames, every 2nd clip frame
+    assert cap.frames(6000, 60, panels=1, size=(64, 64)) == 60
+    gif = render_gif(tmp_path / "three.gif", [walker(600)] * 3, PARENTS, 60, size=(64, 64), cap=cap)
+    assert len(gif_frames(gif)[0]) == 10
+    for seconds in (0, -1, float("nan"), float("inf")):
+        with pytest.raises(WalkdiffError, match="--preview-seconds must be a positive number"):
+            render.PreviewCap(seconds)

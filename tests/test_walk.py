@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 import synthetic
 import torch
+from PIL import Image
 
 from walkdiff.cli import main
 from walkdiff.data.datamodule import MotionDataModule
@@ -210,3 +212,31 @@ def test_config_trains_through_the_cli(synthetic_root, tmp_path, monkeypatch):
     model = load_walker(tmp_path / "checkpoints" / "walk_xia" / "last.ckpt")
     assert model.hparams.hidden == 32 and model.ahead == [0, 3, 6, 9, 12, 15]
     assert model.style_speed[0] > 0 and model.control_normalizer.mean.abs().sum() > 0  # fitted
+
+
+def test_a_path_too_long_for_memory_is_refused_before_walking(trained, tmp_path, capsys):
+    path = tmp_path / "far.json"
+    path.write_text(json.dumps({"points": [[0, 0], [0, 1e6]], "speed": 12.0}))  # 23 h of walking
+    out = tmp_path / "out"
+    args = ["walk", "--ckpt", str(trained), "--style", "old", "--path", str(path), "--out", str(out)]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert re.search(
+        r"--path: 250000\d frames would need about 15.70 GB of memory, above the limit of 4.00 GB",
+        err,
+    )
+    assert "walking" not in err and not list(out.glob("*.bvh"))
+
+
+def test_a_long_walk_gets_a_capped_preview(trained, tmp_path):
+    path = tmp_path / "line.json"
+    path.write_text(json.dumps({"points": [[0, 0], [0, 36]], "speed": 12.0}))  # 3 s
+    out = tmp_path / "out"
+    args = ["walk", "--ckpt", str(trained), "--style", "old", "--path", str(path), "--out", str(out)]
+    assert main([*args, "--preview-seconds", "1"]) == 0
+    manifest = json.loads((out / "old_line.json").read_text())
+    assert manifest["preview"] == {
+        "seconds": 1.0, "of_seconds": 3.033, "capped": True, "note": "first 1 s of 3.033 s"
+    }  # fmt: skip
+    with Image.open(out / "old_line.gif") as gif:
+        assert gif.n_frames == 30

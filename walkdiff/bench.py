@@ -11,10 +11,12 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import strict_json, write_atomic, write_json
+from walkdiff.progress import progress
 
 
 def machine() -> dict:
@@ -165,7 +167,8 @@ def bench_train(
     _, dm = _config_model_and_data(config)
     batch_size = dm.hparams.batch_size
     lightning_s, plain_s = [], []
-    for _ in range(repeats):  # interleaved, so both see the same machine load
+    # interleaved, so both see the same machine load
+    for _ in progress(range(repeats), desc="bench train", unit="repeat"):
         lightning_s.append(_lightning_seconds(config, batches, warmup))
         plain_s.append(_plain_seconds(config, batches, warmup))
     lightning_rate = batches * batch_size / statistics.median(lightning_s)
@@ -613,7 +616,7 @@ def bench_gesture(out: str, ckpt: str | None = None, frames: int = 40, repeats: 
     models = _gesture_models(ckpt)
     audio = torch.randn(frames, models[100].spec["audio_dim"])
     result = {"benchmark": "gesture", "checkpoint": ckpt, "frames_timed": frames, "repeats": repeats}
-    for n, model in models.items():
+    for n, model in progress(models.items(), desc="bench gesture", unit="setting"):
         model.eval()
         model.generate(audio[:3])  # warm-up
         one = _median_seconds(lambda model=model: model.generate(audio), repeats)
@@ -634,6 +637,16 @@ def _strengths(text: str) -> tuple[float, ...]:
         values = ()
     if not values or not all(0 < v <= 1 for v in values):
         raise WalkdiffError(f"--strengths: expected comma-separated numbers in (0, 1], got {text!r}")
+    return values
+
+
+def _frame_counts(text: str, option: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise WalkdiffError(f"{option}: expected comma-separated whole numbers >= 1, got {text!r}")
     return values
 
 
@@ -662,7 +675,158 @@ def run(args) -> None:
         )  # fmt: skip
     elif args.what == "gesture":
         bench_gesture(args.out, args.ckpt, args.frames)
+    elif args.what == "memory":
+        bench_memory(
+            args.out, args.ckpt, _frame_counts(args.frames, "--frames"), args.walker, args.gesture,
+            args.audio, _frame_counts(args.seconds, "--seconds"),
+        )  # fmt: skip
     elif args.what == "walk":
         from walkdiff.walk import bench_walk
 
         print(json.dumps(strict_json(bench_walk(args.out, args.ckpt, args.evaluator, args.seed)), indent=2))
+
+
+# ---------------------------------------------------------------- memory
+
+
+def peak_rss(command: list[str], env: dict | None = None) -> tuple[int, float, int]:
+    """Run `command` in a subprocess: (its exit code, its peak resident memory in bytes, seconds).
+
+    os.wait4 gives that one child's rusage (ru_maxrss, in KiB on Linux), where RUSAGE_CHILDREN would
+    give the largest of all children waited for so far.
+    """
+    import subprocess
+
+    started = time.perf_counter()
+    child = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    with child.stderr:
+        stderr = child.stderr.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode != 0:
+        raise WalkdiffError(
+            f"benchmark run failed ({child.returncode}): {' '.join(command)}\n{stderr.decode()[-2000:]}"
+        )
+    return child.returncode, usage.ru_maxrss * 1024, time.perf_counter() - started
+
+
+def bench_memory(
+    out: str,
+    ckpt: str,
+    frames: tuple[int, ...] = (300, 10_000, 100_000),
+    walker: str | None = None,
+    gesture: str | None = None,
+    audio: str | None = None,
+    seconds: tuple[int, ...] = (10, 120),
+) -> dict:
+    """Peak memory of `walkdiff sample --frames N --num 1` (GIF included) for each N, each in its own
+    process, beside the estimate `walkdiff.memory` refuses frame counts by; with `walker`, of `walkdiff
+    walk` along straight paths of each of `seconds`; with `gesture` and `audio`, of `walkdiff gesture`
+    on the WAV repeated to each of `seconds`.
+
+    The windows are denoised with DDIM over one step: memory does not depend on the sampler or its steps
+    (one window is denoised at a time), and 100,000 frames of DDPM would take hours.
+    """
+    import sys
+
+    from walkdiff.generation import load_generator
+    from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames, memory_limit
+
+    style = load_generator(ckpt).spec["styles"][0]
+    env = os.environ | {"WALKDIFF_PROGRESS": "0"}
+    rows = []
+    walkdiff = [sys.executable, "-m", "walkdiff.cli"]
+    with tempfile.TemporaryDirectory() as tmp:
+        extra = {}
+        if walker is not None:
+            extra["walk"] = [_walk_memory(walkdiff, walker, s, Path(tmp), env) for s in seconds]
+        if gesture is not None:
+            if audio is None:
+                raise WalkdiffError("bench memory: --gesture needs --audio (a speech WAV to repeat)")
+            extra["gesture"] = [_gesture_memory(walkdiff, gesture, audio, s, Path(tmp), env) for s in seconds]
+        for n in progress(frames, desc="bench memory", unit="run"):
+            estimate = check_frames("--frames", n, SAMPLE_BYTES_PER_FRAME)
+            command = [
+                *walkdiff, "sample", "--ckpt", str(ckpt), "--out", f"{tmp}/{n}",
+                "--style", style, "--num", "1", "--frames", str(n), "--sampler", "ddim", "--steps", "1",
+            ]  # fmt: skip
+            _, peak, seconds = peak_rss(command, env)
+            manifest = json.loads((Path(tmp) / str(n) / "manifest.json").read_text())
+            gif = next((Path(tmp) / str(n)).glob("*.gif"))
+            rows.append(
+                {
+                    "command": f"walkdiff sample --frames {n} --num 1 --sampler ddim --steps 1",
+                    "frames": n,
+                    "peak_rss_mb": round(peak / 1e6, 1),
+                    "estimate_mb": round(estimate / 1e6, 1),
+                    "seconds": round(seconds, 1),
+                    "gif_mb": round(gif.stat().st_size / 1e6, 2),
+                    "preview": manifest["preview"]["note"],
+                }
+            )
+    result = {
+        "benchmark": "memory",
+        "ckpt": ckpt,
+        "limit_mb": round(memory_limit() / 1e6),
+        "sample": rows,
+        **extra,
+        "machine": machine(),
+    }
+    report(out, result)
+    return result
+
+
+def _walk_memory(walkdiff: list[str], ckpt: str, seconds: int, tmp: Path, env: dict) -> dict:
+    """Peak memory of `walkdiff walk` along a straight path walked in `seconds` at 1.2 m/s."""
+    from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
+    from walkdiff.walk import load_walker
+
+    model = load_walker(ckpt)
+    path = tmp / f"straight_{seconds}s.json"
+    write_json(path, {"points": [[0, 0], [0, 1.2 * seconds]], "speed": 1.2})
+    frames = round(seconds * model.spec["fps"]) + 1
+    style = model.spec["styles"][0]
+    command = [
+        *walkdiff,
+        "walk",
+        "--ckpt",
+        ckpt,
+        "--style",
+        style,
+        "--path",
+        str(path),
+        "--out",
+        str(tmp / path.stem),
+    ]
+    _, peak, spent = peak_rss(command, env)
+    return {
+        "command": f"walkdiff walk --path <straight, {seconds} s at 1.2 m/s>",
+        "frames": frames,
+        "peak_rss_mb": round(peak / 1e6, 1),
+        "estimate_mb": round(check_frames("--path", frames, WALK_BYTES_PER_FRAME) / 1e6, 1),
+        "seconds": round(spent, 1),
+    }
+
+
+def _gesture_memory(walkdiff: list[str], ckpt: str, audio: str, seconds: int, tmp: Path, env: dict) -> dict:
+    """Peak memory of `walkdiff gesture` on `audio` repeated (or cut) to `seconds`."""
+    import soundfile
+
+    from walkdiff.data.speech import read_wav
+    from walkdiff.gesture import load_model
+    from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
+
+    samples, rate = read_wav(audio)
+    long = np.resize(samples, seconds * rate)  # repeated end to end
+    wav = tmp / f"speech_{seconds}s.wav"
+    soundfile.write(str(wav), long, rate)
+    fps = load_model(ckpt).spec["fps"]
+    command = [*walkdiff, "gesture", "--ckpt", ckpt, "--audio", str(wav), "--out", str(tmp / wav.stem)]
+    _, peak, spent = peak_rss(command, env)
+    return {
+        "command": f"walkdiff gesture --audio <{seconds} s of speech>",
+        "frames": round(seconds * fps),
+        "peak_rss_mb": round(peak / 1e6, 1),
+        "estimate_mb": round(check_frames("--audio", round(seconds * fps), GESTURE_BYTES_PER_FRAME) / 1e6, 1),
+        "seconds": round(spent, 1),
+    }

@@ -19,6 +19,7 @@ SAMPLER_HELP = (
 )
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
+PREVIEW_HELP = "seconds of each clip the GIF preview shows, from its start (default 20)"
 PROFILE_HELP = (
     "YAML/JSON of skeleton profile overrides (root, left_heel, left_toe, right_heel, right_toe, up, forward, "
     "units, body_height, contact_speed, contact_height, mirror_pairs); the rest is found from the file"
@@ -324,6 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="keep the height as sampled (default: planted feet lifted or lowered onto the floor)",
         )  # fmt: skip
         p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
+        p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
         p.add_argument("--overwrite", action="store_true", help="replace existing output files")
         p.add_argument("--device", default="cpu", help="cpu or cuda")
 
@@ -349,6 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
+    p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
@@ -361,6 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
+    p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
     # Its own verb: `evaluate` is the walking protocol (an evaluator network, FMD, style accuracy);
@@ -390,20 +394,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--ckpt", required=True, help="teacher: a StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help="student checkpoint to write")
-    p.add_argument("--steps", type=int, default=10, help="DDIM steps the student is made for (default 10)")
     p.add_argument(
-        "--iterations", type=int, default=1000,
+        "--steps", type=count(1), default=10, help="DDIM steps the student is made for (default 10)"
+    )
+    p.add_argument(
+        "--iterations", type=count(1), default=1000,
         help="batches to train (default 1000): the bound, so the same command and seed give the same student "
         "on any machine",
     )  # fmt: skip
     p.add_argument(
-        "--minutes", type=float, default=None,
+        "--minutes", type=number(0, above=True), default=None,
         help="optional safety net: stop after this many minutes (says how many of the batches were done, "
         "and records it in the student's checkpoint; the student then depends on the machine's speed)",
     )  # fmt: skip
-    p.add_argument("--lr", type=float, default=3e-5, help="Adam learning rate (default 3e-5)")
+    p.add_argument("--lr", type=number(0, above=True), default=3e-5, help="Adam learning rate (default 3e-5)")
     p.add_argument(
-        "--preserve", type=float, default=0.25,
+        "--preserve", type=number(0, 1), default=0.25,
         help="share of each batch held, without a jump, to the teacher's own output, so DDPM and the other "
         "samplers still sample as the teacher did (default 0.25)",
     )  # fmt: skip
@@ -426,6 +432,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
     b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
+    b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument("--frames", default="300,10000,100000", help="frame counts (default 300,10000,100000)")
+    b.add_argument("--walker", default=None, help="PathWalker checkpoint: also `walk` along long paths")
+    b.add_argument("--gesture", default=None, help="DiffMotion checkpoint: also `gesture` on long audio")
+    b.add_argument("--audio", default=None, help="speech WAV, repeated to each of --seconds (with --gesture)")
+    b.add_argument("--seconds", default="10,120", help="walk / speech seconds (default 10,120)")
     b = bench.add_parser("walk", help="path-following error and style accuracy of walks along test paths")
     b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")
@@ -629,6 +643,8 @@ def run_command(args: argparse.Namespace) -> int:
         del options["command"]
         report = getattr(generation, args.command)(**options)
         print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in report["timing"].items()))
+        if report["preview"] is not None:
+            print(f"preview: {report['preview']['note']}")
     elif args.command in ("gesture", "evaluate-gesture"):
         from walkdiff import gesture
         from walkdiff.files import strict_json

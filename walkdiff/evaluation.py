@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from torchmetrics.classification import MulticlassAccuracy
-from tqdm import tqdm
 
 from walkdiff.checkpoints import expect_class, read_checkpoint
 from walkdiff.data.datamodule import MotionDataModule
@@ -46,6 +45,7 @@ from walkdiff.metrics import (
 )
 from walkdiff.motion.representation import features_to_positions
 from walkdiff.motion.skeleton import Skeleton
+from walkdiff.progress import progress, step_hook
 
 log = logging.getLogger(__name__)
 
@@ -223,19 +223,24 @@ def generate_windows(
     generator: torch.Generator,
     batch_size: int,
     grounded: bool = True,
+    desc: str = "generating windows",
     **sampling,
 ) -> WindowSet:
-    """`num` raw windows from a generator (`generate`, `to_raw`), grounded unless told otherwise."""
+    """`num` raw windows from a generator (`generate`, `to_raw`), grounded unless told otherwise, with a
+    progress bar `desc` over batches x denoising steps."""
     style, content = balanced_labels(num, len(model.spec["styles"]), content_ids)
     raws = []
-    for i in range(0, num, batch_size):
-        x = model.generate(
-            style[i : i + batch_size].to(model.device),
-            content[i : i + batch_size].to(model.device),
-            generator=generator,
-            **sampling,
-        )
-        raws.append(torch.from_numpy(model.to_raw(x, grounded)))
+    with progress(desc=desc, unit="step") as bar:
+        hook = step_hook(bar, math.ceil(num / batch_size))
+        for i in range(0, num, batch_size):
+            x = model.generate(
+                style[i : i + batch_size].to(model.device),
+                content[i : i + batch_size].to(model.device),
+                generator=generator,
+                progress=hook,
+                **sampling,
+            )
+            raws.append(torch.from_numpy(model.to_raw(x, grounded)))
     return WindowSet(torch.cat(raws), style, content, torch.full((num,), -1))
 
 
@@ -363,11 +368,12 @@ def evaluate(
         content_ids = [list(model.spec["contents"]).index(name) for name in dm.selection.names]
         generator = torch.Generator(device=model.device).manual_seed(seed)
         rows["generated"] = []
-        for repeat in tqdm(range(repeats), desc="generated", unit="repeat"):
-            sampling = dict(sampler=sampler, steps=steps, guidance=guidance, progress=True)
+        for repeat in range(repeats):
+            sampling = dict(sampler=sampler, steps=steps, guidance=guidance)
             windows = generate_windows(
-                model, num, content_ids, generator, batch_size, grounded=False, **sampling
-            )
+                model, num, content_ids, generator, batch_size, grounded=False,
+                desc=f"generating, repeat {repeat + 1} of {repeats}", **sampling,
+            )  # fmt: skip
             if ground:
                 # The same windows scored both ways: what grounding changes, and only that.
                 rows.setdefault("generated, not grounded", []).append(
@@ -380,10 +386,10 @@ def evaluate(
     for name, pool in ((f"real {split}", reference), (f"real train vs {split}", train)):
         rows[name] = [
             scorer.score(pool.take(torch.randint(len(pool), (num,), generator=draw)), seed=seed + repeat)
-            for repeat in tqdm(range(repeats), desc=name, unit="repeat")
+            for repeat in progress(range(repeats), desc=name, unit="repeat")
         ]
     halves = [
-        halves_fmd(reference, draw) for _ in tqdm(range(repeats), desc=f"{split} halves", unit="repeat")
+        halves_fmd(reference, draw) for _ in progress(range(repeats), desc=f"{split} halves", unit="repeat")
     ]
 
     report = {

@@ -171,11 +171,26 @@ def fix_feet_features(raw: np.ndarray, profile: SkeletonProfile, fps: float) -> 
 # ---------------------------------------------------------------- grounding (vertical)
 
 
+FK_FRAMES = 4096  # frames put through forward kinematics at a time: a long clip's FK in bounded memory
+
+
 def _feet_heights(raw: torch.Tensor, skeleton: Skeleton, spec: ContactSpec) -> torch.Tensor:
-    """World heights (..., F, 4) of the contact joints of raw features (..., F, D)."""
+    """World heights (..., F, 4) of the contact joints of raw features (..., F, D).
+
+    Heights do not depend on where the root is or which way it heads (the root height is a channel of
+    its own and heading turns about the vertical), so a long clip is taken FK_FRAMES frames at a time.
+    """
     offsets = torch.from_numpy(skeleton.offsets).to(raw.dtype)
-    positions = features_to_positions(raw, offsets, skeleton.parents)
-    return positions[..., [skeleton.index(name) for name in spec.joints], 1]
+    feet = [skeleton.index(name) for name in spec.joints]
+    return torch.cat(
+        [
+            features_to_positions(raw[..., start : start + FK_FRAMES, :], offsets, skeleton.parents)[
+                ..., feet, 1
+            ]
+            for start in range(0, raw.shape[-2], FK_FRAMES)
+        ],
+        dim=-2,
+    )
 
 
 def planted_heights(clips: list[np.ndarray], skeleton: Skeleton, spec: ContactSpec) -> np.ndarray:

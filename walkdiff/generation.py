@@ -26,12 +26,14 @@ from walkdiff.diffusion import log_snr_timesteps, respace, run_steps, step_coeff
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import output_folder, write_json
 from walkdiff.footfix import fix_feet
+from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions, start_pose
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
-from walkdiff.render import render_gif
+from walkdiff.progress import progress, step_hook
+from walkdiff.render import PREVIEW_SECONDS, PreviewCap, render_gif
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]
@@ -226,8 +228,13 @@ def generate_long(
     overlap: int | None = None,
     blend: int | None = None,
 ) -> torch.Tensor:
-    """Normalised features (B, frames, D) of any length from a model whose `generate` makes windows."""
+    """Normalised features (B, frames, D) of any length from a model whose `generate` makes windows,
+    with a progress bar over windows x denoising steps."""
     window = model.spec["window"]
+    overlap, blend = resolve_windows(window, overlap, blend)
+    windows = len(window_plan(frames, window, overlap))  # a bad length fails before the bar opens
+    bar = progress(desc="sampling", unit="step")
+    hook = step_hook(bar, windows)
 
     def denoise(start: int, stop: int, inpaint: Known | None) -> torch.Tensor:
         return model.generate(
@@ -240,10 +247,11 @@ def generate_long(
             guidance=sampling.guidance,
             generator=generator,
             inpaint=inpaint,
+            progress=hook,
         )
 
-    overlap, blend = resolve_windows(window, overlap, blend)
-    return windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise, blend)
+    with bar:
+        return windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise, blend)
 
 
 def noised_steps(model, strength: float, sampling: Sampling) -> tuple[int, list[int], float]:
@@ -279,6 +287,12 @@ def restyle(
     table = step_coefficients(diffusion, timesteps, eta, sampling.order)
     model_fn = model.model_fn(style, content, sampling.guidance)
     layout = FeatureLayout.from_dim(source.shape[-1])
+    window = model.spec["window"]
+    overlap, blend = resolve_windows(window, overlap, blend)
+    batch, frames, dim = source.shape
+    windows = len(window_plan(frames, window, overlap))  # a bad length fails before the bar opens
+    bar = progress(desc="transfer", unit="step")
+    hook = step_hook(bar, windows)
     root = torch.zeros(source.shape[-1], dtype=torch.bool)
     root[layout.root_vel] = root[layout.heading_vel] = True
     device = diffusion.betas.device
@@ -295,12 +309,12 @@ def restyle(
         noise = torch.randn(x0.shape, generator=generator, device=draw_on).to(device)
         x_t = diffusion.q_sample(x0, torch.full((x0.shape[0],), t0, device=device), noise)
         inpainted = (mask, known) if mask.any() else None
-        return run_steps(model_fn, diffusion, None, table, generator=generator, x_T=x_t, inpaint=inpainted)
+        return run_steps(
+            model_fn, diffusion, None, table, generator=generator, x_T=x_t, inpaint=inpainted, progress=hook
+        )
 
-    window = model.spec["window"]
-    overlap, blend = resolve_windows(window, overlap, blend)
-    batch, frames, dim = source.shape
-    return windowed(batch, frames, dim, window, overlap, denoise, blend)
+    with bar:
+        return windowed(batch, frames, dim, window, overlap, denoise, blend)
 
 
 # ---------------------------------------------------------------- files
@@ -332,19 +346,27 @@ def _finish(model, raw: np.ndarray, start: tuple[np.ndarray, float] | None, feet
 
 
 def _write_clip(
-    model, path: Path, motion: Motion, title: str, gif: bool, others: tuple[tuple[Motion, str], ...] = ()
+    model,
+    path: Path,
+    motion: Motion,
+    title: str,
+    cap: PreviewCap | None,
+    others: tuple[tuple[Motion, str], ...] = (),
 ) -> None:
-    """A canonical clip as BVH on the training files' skeleton; the GIF shows the canonical (Y-up) clip."""
+    """A canonical clip as BVH on the training files' skeleton; the GIF (unless `cap` is None) shows the
+    canonical (Y-up) clip's first seconds, only whose joint positions are computed."""
     write_bvh(path, model.to_file(motion))
-    if gif:
+    if cap is not None:
         clips = [*others, (motion, title)]
+        shown = cap.frames(max(m.num_frames for m, _ in clips), motion.fps, len(clips))
         render_gif(
             path.with_suffix(".gif"),
-            [motion_world_positions(m) for m, _ in clips],
+            [motion_world_positions(m.slice(0, shown)) for m, _ in clips],
             motion.skeleton.parents,
             motion.fps,
             names=motion.skeleton.names,
             titles=[t for _, t in clips],
+            cap=cap,
         )
 
 
@@ -365,13 +387,18 @@ def sample(
     ground: bool = True,
     fix_feet: bool = False,
     gif: bool = True,
+    preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
 ) -> dict:
-    """`walkdiff sample`: `num` clips as BVH (+ GIF) and `manifest.json` in `out`; returns the manifest."""
+    """`walkdiff sample`: `num` clips as BVH (+ GIF previews of their first `preview_seconds`) and
+    `manifest.json` in `out`; returns the manifest."""
     if num < 1:
         raise WalkdiffError(f"--num must be at least 1, got {num}")
+    if frames >= 1:  # window_plan names a bad --frames
+        check_frames("--frames", frames, SAMPLE_BYTES_PER_FRAME, num)
     sampling = Sampling(sampler, steps, eta, guidance)
+    cap = PreviewCap(preview_seconds) if gif else None
     model = load_generator(ckpt, device)
     style_label, label = parse_style(model, style)
     content_id = model.label_ids([content], "content")[0]
@@ -391,8 +418,9 @@ def sample(
     generated = time.perf_counter() - started
     raw = model.to_raw(x, ground)
     out.mkdir(parents=True, exist_ok=True)
+    del x  # the features are kept in data units (raw) only
     for path, features in zip(bvh, raw, strict=True):
-        _write_clip(model, path, _finish(model, features, None, fix_feet), f"{label} {content}", gif)
+        _write_clip(model, path, _finish(model, features, None, fix_feet), f"{label} {content}", cap)
     manifest = {
         "command": "sample",
         "checkpoint": str(ckpt),
@@ -411,6 +439,7 @@ def sample(
         },
         "seed": seed,
         "files": [p.name for p in bvh],
+        "preview": None if cap is None else cap.describe(frames, model.spec["fps"]),
         "timing": {
             "generate_s": round(generated, 3),
             "write_s": round(time.perf_counter() - started - generated, 3),
@@ -439,11 +468,14 @@ def transfer(
     ground: bool = True,
     fix_feet: bool = False,
     gif: bool = True,
+    preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
 ) -> dict:
-    """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source and a JSON report."""
+    """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source (of their first
+    `preview_seconds`) and a JSON report."""
     sampling = Sampling(sampler, steps, eta, guidance)
+    cap = PreviewCap(preview_seconds) if gif else None
     model = load_generator(ckpt, device)
     style_label, label = parse_style(model, style)
     content_id = model.label_ids([content], "content")[0]
@@ -456,6 +488,7 @@ def transfer(
     fps = model.spec["fps"]
     if abs(motion.fps - fps) > 1e-3 * fps:
         motion = resample(motion, fps)
+    check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
     out = output_folder(out)
     target = out / f"{input.stem}_to_{label}.bvh"
     report_path = target.with_suffix(".json")
@@ -471,7 +504,7 @@ def transfer(
     elapsed = time.perf_counter() - started
     result = _finish(model, model.to_raw(x, ground)[0], start_pose(motion, model.profile), fix_feet)
     out.mkdir(parents=True, exist_ok=True)
-    _write_clip(model, target, result, label, gif, others=((motion, "source"),))
+    _write_clip(model, target, result, label, cap, others=((motion, "source"),))
     report = {
         "command": "transfer",
         "checkpoint": str(ckpt),
@@ -491,6 +524,7 @@ def transfer(
         },
         "seed": seed,
         "file": target.name,
+        "preview": None if cap is None else cap.describe(motion.num_frames, fps, panels=2),
         "root_path_error": root_path_error(motion, result),
         "timing": {"restyle_s": round(elapsed, 3)},
     }

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import inspect
 import itertools
+import math
 import tempfile
 import time
 from pathlib import Path
@@ -27,15 +28,17 @@ import numpy as np
 import torch
 from scipy.signal import argrelmin
 
-from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav
+from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import output_folder, write_json
+from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
 from walkdiff.metrics import Jitter
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.skeleton import Motion
-from walkdiff.render import render_gif
+from walkdiff.progress import progress, step_hook
+from walkdiff.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
 from walkdiff.tracking import log_file
 
 SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
@@ -56,9 +59,11 @@ def load_model(path: str | Path, device: str | torch.device = "cpu"):
 
 
 def synthesize(model, audio: np.ndarray, streams: int = 1, seed: int = 0, smooth: bool = False) -> np.ndarray:
-    """(streams, F, D) pose features for (F, M) log-mel audio, the streams batched; optionally smoothed."""
+    """(streams, F, D) pose features for (F, M) log-mel audio, the streams batched; optionally smoothed.
+    A progress bar counts the frames."""
     generator = torch.Generator(device=model.device).manual_seed(seed)
-    poses = model.generate(torch.from_numpy(audio), generator, streams).cpu().numpy()
+    with progress(desc="gestures", unit="frame") as bar:
+        poses = model.generate(torch.from_numpy(audio), generator, streams, step_hook(bar)).cpu().numpy()
     return savgol(poses, SMOOTH_WINDOW, SMOOTH_ORDER, axis=1) if smooth else poses
 
 
@@ -75,20 +80,25 @@ def joint_positions(model, features: np.ndarray) -> np.ndarray:
     return motion_world_positions(to_motion(model, features))[:, joints]
 
 
-def write_clips(out: Path, stem: str, model, clips: list[np.ndarray], titles: list[str]) -> list[Path]:
-    """One BVH per clip of features and one GIF with all of them side by side."""
+def write_clips(
+    out: Path, stem: str, model, clips: list[np.ndarray], titles: list[str], cap: PreviewCap = DEFAULT_PREVIEW
+) -> tuple[list[Path], dict]:
+    """One BVH per clip of features and one GIF with the first seconds of all of them side by side;
+    the files and what the preview shows (`PreviewCap.describe`)."""
     out.mkdir(parents=True, exist_ok=True)
+    fps = model.spec["fps"]
+    shown = cap.frames(max(len(c) for c in clips), fps, len(clips))
     files, positions = [], []
     for clip, title in zip(clips, titles):
         motion = to_motion(model, clip)
         path = out / (f"{stem}.bvh" if len(clips) == 1 else f"{stem}_{title}.bvh")
         write_bvh(path, model.to_file(motion))
         files.append(path)
-        positions.append(motion_world_positions(motion))
+        positions.append(motion_world_positions(motion.slice(0, shown)))
     gif = out / f"{stem}.gif"
     skeleton = model.skeleton
-    render_gif(gif, positions, skeleton.parents, model.spec["fps"], names=skeleton.names, titles=titles)
-    return files + [gif]
+    render_gif(gif, positions, skeleton.parents, fps, names=skeleton.names, titles=titles, cap=cap)
+    return files + [gif], cap.describe(max(len(c) for c in clips), fps, len(clips))
 
 
 def gesture(
@@ -98,11 +108,13 @@ def gesture(
     seed: int = 0,
     smooth: bool = False,
     streams: int = 1,
+    preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
 ) -> dict:
-    """`walkdiff gesture`: BVH(s) and a GIF for a WAV file."""
+    """`walkdiff gesture`: BVH(s) and a GIF (of their first `preview_seconds`) for a WAV file."""
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
+    cap = PreviewCap(preview_seconds)
     titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
     stem, out = Path(audio).stem, output_folder(out)
     targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
@@ -110,18 +122,23 @@ def gesture(
     if taken and not overwrite:
         raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}; pass --overwrite to replace them")
     model = load_model(ckpt)
+    # From the file's header, so a WAV too long is refused before its samples are read; one frame per hop
+    # and one more, as log_mel's centred frames.
+    frames = math.floor(wav_seconds(audio) * model.spec["fps"]) + 1
+    check_frames("--audio", frames, GESTURE_BYTES_PER_FRAME, streams)
     samples, rate = read_wav(audio)
     mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
     start = time.perf_counter()
     clips = synthesize(model, mel, streams, seed, smooth)
     elapsed = time.perf_counter() - start
-    files = write_clips(Path(out), stem, model, list(clips), titles)
+    files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap)
     return {
         "frames": len(mel),
         "seconds": len(mel) / model.spec["fps"],
         "streams": streams,
         "seconds_per_frame": elapsed / len(mel),
         "files": [str(f) for f in files],
+        "preview": preview,
     }
 
 
@@ -203,7 +220,7 @@ def evaluate_gesture(
     fps = model.spec["fps"]
     out_dir = Path(out)
     rows = []
-    for take in data.load_takes():
+    for take in progress(data.load_takes(), desc="takes", unit="take"):
         begin, end = data.split_frames(take, "test")
         truth_features = data.poses(take)[begin:end]
         wav, rate = read_wav(take.wav)
@@ -230,7 +247,7 @@ def evaluate_gesture(
             }
             row[name]["jerk_over_truth"] = row[name]["jerk"] / row["truth"]["jerk"]
         row["seconds_per_frame"] = elapsed / (end - begin)  # all `samples` streams generated together
-        write_clips(
+        _, row["preview"] = write_clips(
             out_dir / take.name,
             take.name,
             model,
@@ -302,7 +319,7 @@ class GestureSamples(L.Callback):
         clip = synthesize(pl_module, take.audio[begin:end], 1, self.seed, smooth=True)[0]
         pl_module.train(was_training)
         with tempfile.TemporaryDirectory() as tmp:
-            files = write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
+            files, _ = write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
             for path in files:
                 log_file(logger, path, artifact_dir)
             return files if folder else []

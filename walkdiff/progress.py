@@ -8,15 +8,21 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from tqdm import tqdm
 
 
 def progress(
-    iterable: Iterable | None = None, *, total: int | None = None, desc: str, unit: str = "it"
+    iterable: Iterable | None = None,
+    *,
+    total: int | None = None,
+    desc: str,
+    unit: str = "it",
+    show: bool = True,
 ) -> tqdm:
-    """A bar over `iterable` (or updated by hand up to `total`): `for x in progress(xs, desc="clips")`."""
+    """A bar over `iterable` (or updated by hand up to `total`): `for x in progress(xs, desc="clips")`.
+    `show=False` hides it (work too short to need one)."""
     terminal = sys.stderr.isatty()
     return tqdm(
         iterable,
@@ -27,5 +33,19 @@ def progress(
         dynamic_ncols=True,
         leave=terminal,
         mininterval=0.1 if terminal else 10.0,
-        disable=os.environ.get("WALKDIFF_PROGRESS", "1") == "0",
+        disable=not show or os.environ.get("WALKDIFF_PROGRESS", "1") == "0",
     )
+
+
+def step_hook(bar: tqdm, runs: int = 1) -> Callable[[int, int], None]:
+    """A sampler's `progress` hook, hook(steps_done, steps_total), that advances `bar` one step at a time
+    over `runs` sampler runs: the bar's total, `runs` times one run's steps, is set at the first step, so
+    a caller need not know how many steps its sampler takes."""
+
+    def hook(done: int, total: int) -> None:
+        if bar.total is None:
+            bar.total = runs * total
+            bar.refresh()
+        bar.update(1)
+
+    return hook

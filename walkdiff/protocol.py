@@ -18,9 +18,9 @@ import time
 from pathlib import Path
 
 import torch
-from tqdm import tqdm
 
 from walkdiff.files import output_folder, write_json, write_text
+from walkdiff.progress import progress
 from walkdiff.score import (
     METRICS,
     Clip,
@@ -67,7 +67,8 @@ def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.
     contents = list(model.spec["contents"])
     generator = torch.Generator().manual_seed(seed)
     outputs, paired, targets = [], [], []
-    for source, raw in tqdm(list(zip(sources, raws, strict=True)), desc=f"transfer {strength}", unit="clip"):
+    pairs = list(zip(sources, raws, strict=True))
+    for source, raw in progress(pairs, desc=f"transfer {strength}", unit="clip"):
         target = torch.tensor([i for i, s in enumerate(styles) if s != source.style])
         x0 = model.normalizer.normalize(raw)[None].expand(len(target), -1, -1)
         content = torch.full_like(target, contents.index(source.content))

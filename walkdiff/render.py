@@ -28,6 +28,10 @@ PITCH = math.radians(18.0)  # camera elevation, enough to see the ground grid an
 TRAIL_SECONDS = 3.0
 TRAIL_SHADES = 6  # palette entries per fading trail
 MAX_GIF_FPS = 50  # GIF delays are in 1/100 s, and browsers slow down anything shorter than 20 ms
+PREVIEW_SECONDS = 20.0  # a preview shows a clip's first 20 s: enough to judge the motion, a few MB of GIF
+# Pixels of all of a GIF's frames (1 byte each in palette mode; Pillow holds every frame until it writes):
+# 20 s of one 320x320 panel at 30 fps is 61 M; previews of several panels side by side get shorter.
+PREVIEW_PIXELS = 100_000_000
 
 BACKGROUND: Color = (250, 250, 247)
 GRID: Color = (222, 222, 216)
@@ -35,6 +39,51 @@ TEXT: Color = (40, 40, 40)
 BODY: Color = (55, 55, 55)
 LEFT: Color = (33, 102, 172)
 RIGHT: Color = (214, 96, 39)
+
+
+@dataclass(frozen=True)
+class PreviewCap:
+    """How much of a clip a preview shows: its first `seconds`, and no more GIF frames than fit in
+    `pixels` (frames x width x height of all panels), so that a preview's memory and file stay bounded
+    whatever the clip's length."""
+
+    seconds: float = PREVIEW_SECONDS
+    pixels: int = PREVIEW_PIXELS
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.seconds) and self.seconds > 0):
+            raise WalkdiffError(f"--preview-seconds must be a positive number of seconds, got {self.seconds}")
+        if self.pixels < 1:
+            raise WalkdiffError(f"the preview pixel budget must be positive, got {self.pixels}")
+
+    def frames(
+        self, clip_frames: int, fps: float, panels: int = 1, size: tuple[int, int] = (320, 320),
+        max_fps: float = 30,
+    ) -> int:  # fmt: skip
+        """Frames (at the clip's fps) of a `clip_frames` clip that a GIF of `panels` panels shows."""
+        step = gif_step(fps, max_fps)
+        gif_frames = max(1, self.pixels // (panels * size[0] * size[1]))
+        return max(1, min(clip_frames, math.floor(self.seconds * fps + 1e-9), gif_frames * step))
+
+    def describe(self, clip_frames: int, fps: float, panels: int = 1, **gif) -> dict:
+        """What a preview of a `clip_frames` clip shows, for manifests and the console."""
+        shown = self.frames(clip_frames, fps, panels, **gif)
+        seconds, total = shown / fps, clip_frames / fps
+        note = f"first {seconds:.3g} s of {total:.4g} s" if shown < clip_frames else f"all {total:.4g} s"
+        return {
+            "seconds": round(seconds, 3),
+            "of_seconds": round(total, 3),
+            "capped": shown < clip_frames,
+            "note": note,
+        }
+
+
+DEFAULT_PREVIEW = PreviewCap()
+
+
+def gif_step(fps: float, max_fps: float) -> int:
+    """Every how many frames of a clip at `fps` a GIF playing at most `max_fps` shows one."""
+    return math.ceil(fps / max_fps - 1e-9)
 
 
 def render_gif(
@@ -49,6 +98,7 @@ def render_gif(
     max_fps: float = 30,
     size: tuple[int, int] = (320, 320),
     trail: bool = True,
+    cap: PreviewCap = DEFAULT_PREVIEW,
 ) -> Path:
     """Write an animated GIF of one or more clips side by side and return its path.
 
@@ -59,6 +109,7 @@ def render_gif(
     titles / colors: one per clip; a colour replaces the body colour (and that of the trail).
     max_fps: frames are skipped so that the GIF plays at most this fast, at the clip's real speed.
     size: (width, height) of one panel in pixels.
+    cap: the clips' first seconds shown (`PreviewCap.describe` says how much, for a manifest).
     """
     clips, parents = _check_clips(positions, parents, names, titles, colors, size)
     if not (math.isfinite(fps) and fps > 0):
@@ -68,8 +119,10 @@ def render_gif(
             f"max_fps must be in (0, {MAX_GIF_FPS}] (GIF timing is in 1/100 s), got {max_fps}"
         )
 
-    step = math.ceil(fps / max_fps - 1e-9)
-    sources = range(0, max(len(c) for c in clips), step)
+    shown = cap.frames(max(len(c) for c in clips), fps, len(clips), size, max_fps)
+    clips = [c[:shown] for c in clips]
+    step = gif_step(fps, max_fps)
+    sources = range(0, shown, step)
     scene = _Scene(
         clips, parents, names, colors, size, trail_frames=round(TRAIL_SECONDS * fps) if trail else 0
     )

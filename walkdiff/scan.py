@@ -11,18 +11,17 @@ from __future__ import annotations
 import json
 import math
 import re
-import sys
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.folder import NO_CONTENT, NO_STYLE, SPLITS, FolderSource
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_text
 from walkdiff.motion.profile import SkeletonProfile
+from walkdiff.progress import progress
 
 TRAINING_FPS = 30  # the suggested rate for data at 30 fps or more
 WINDOW_SECONDS = 0.8  # the suggested window, at most the 10th percentile clip length
@@ -77,7 +76,7 @@ def scan(
 
     skeleton_profile: SkeletonProfile | None = None
     frames, frame_times = [], []
-    bar = tqdm(clips, desc="reading BVH", unit="file", file=sys.stderr, disable=len(clips) <= PROGRESS_ABOVE)
+    bar = progress(clips, desc="reading BVH", unit="file", show=len(clips) > PROGRESS_ABOVE)
     for clip in bar:
         motion = source.load(clip)
         if skeleton_profile is None:

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from walkdiff.errors import WalkdiffError
 from walkdiff.evaluation import MotionScorer, WindowSet, data_settings, load_evaluator, window_set
@@ -35,6 +34,7 @@ from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.metrics.physics import jerk_sums, skating_sums
 from walkdiff.motion.body_features import resample_positions
 from walkdiff.motion.bvh import read_bvh
+from walkdiff.progress import progress
 
 log = logging.getLogger(__name__)
 
@@ -332,7 +332,7 @@ def _clip_table(clips: list[Clip], windows: WindowSet, scorer: ClipScorer) -> li
 
 def _score_folder(scorer: ClipScorer, files: list[tuple[str, Path, dict]], bootstrap: int, seed: int):
     clips = []
-    for name, path, values in tqdm(files, desc="reading", unit="clip"):
+    for name, path, values in progress(files, desc="reading", unit="clip"):
         clip = scorer.read(path, name)
         clip.style, clip.content = values.get("style"), values.get("content")
         clips.append(clip)
@@ -349,7 +349,7 @@ def _score_folder(scorer: ClipScorer, files: list[tuple[str, Path, dict]], boots
 
 def _score_transfer(scorer: ClipScorer, entries: list[dict], manifest: Path, bootstrap: int, seed: int):
     outputs, sources = [], {}
-    for entry in tqdm(entries, desc="reading", unit="clip"):
+    for entry in progress(entries, desc="reading", unit="clip"):
         scorer.label_id("style", entry["style"], f"{manifest}:{entry['line']}")
         clip = scorer.read(entry["file"], str(entry["file"]))
         clip.style = entry["style"]

@@ -16,12 +16,14 @@ import torch
 
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import output_folder, write_atomic, write_json
+from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import decode
 from walkdiff.motion.skeleton import Motion
-from walkdiff.render import render_gif
+from walkdiff.progress import progress, step_hook
+from walkdiff.render import PREVIEW_SECONDS, PreviewCap, render_gif
 
 
 def load_walker(path: str | Path, device: str | torch.device = "cpu"):
@@ -40,14 +42,17 @@ def frames_for(path: Polyline, speed: float, fps: float) -> int:
 def walk_paths(
     model, path: Polyline, styles: list[int], speed: float | None, seed: int, frames: int | None = None
 ) -> tuple[np.ndarray, tuple[np.ndarray, float], np.ndarray]:
-    """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id."""
+    """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id; refused
+    before any work where the path is too long for memory, with a progress bar over the frames."""
     style = torch.tensor(styles)
     speeds = model.style_speed[style].cpu() if speed is None else torch.full((len(styles),), float(speed))
     if (speeds <= 0).any():
         raise WalkdiffError("the checkpoint has no walking speed for a style; give --speed")
     frames = frames or max(frames_for(path, float(s), model.spec["fps"]) for s in speeds)
+    check_frames("--path", frames, WALK_BYTES_PER_FRAME, len(styles))
     generator = torch.Generator(device=model.device).manual_seed(seed)
-    raw, start = model.generate(path, style, speeds, frames, generator)
+    with progress(desc="walking", unit="frame") as bar:
+        raw, start = model.generate(path, style, speeds, frames, generator, step_hook(bar))
     return raw, start, speeds.numpy()
 
 
@@ -102,9 +107,12 @@ def walk(
     speed: float | None = None,
     seed: int = 0,
     gif: bool = True,
+    preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
 ) -> dict:
-    """`walkdiff walk`: a BVH (+ GIF and a top-down plot) of the style walking along the path file."""
+    """`walkdiff walk`: a BVH (+ a GIF of its first `preview_seconds` and a top-down plot) of the style
+    walking along the path file."""
+    cap = PreviewCap(preview_seconds) if gif else None
     model = load_walker(ckpt)
     styles = list(model.spec["styles"])
     if style not in styles:
@@ -130,11 +138,13 @@ def walk(
     root_xz = motion.root_positions[:, [0, 2]]
     write_bvh(bvh, model.to_file(motion))
     files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, metres, [(style, root_xz * unit)])])]
-    if gif:
+    if cap is not None:
         skeleton = model.skeleton
-        positions = motion_world_positions(motion)
+        positions = motion_world_positions(motion.slice(0, cap.frames(motion.num_frames, motion.fps)))
         files.append(
-            render_gif(out / f"{stem}.gif", [positions], skeleton.parents, motion.fps, names=skeleton.names)
+            render_gif(
+                out / f"{stem}.gif", [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap
+            )
         )
     manifest = {
         "checkpoint": str(ckpt),
@@ -148,6 +158,7 @@ def walk(
         "generation_seconds": round(elapsed, 2),
         "path_error_m": path_error(metres, root_xz * unit),
         "files": [str(f) for f in files],
+        "preview": None if cap is None else cap.describe(motion.num_frames, motion.fps),
     }
     write_json(out / f"{stem}.json", manifest)
     return manifest

@@ -108,6 +108,7 @@ class MotionMetrics(L.Callback):
             sampler=self.sampler,
             steps=self.steps,
             guidance=self.guidance,
+            desc=f"metrics: generating {self.num_samples} windows",
         )
         generated = self.scorer.embed(windows)
         values = self.scorer.score(generated, seed=self.seed)

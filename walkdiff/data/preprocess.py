@@ -16,7 +16,6 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from walkdiff.data.clips import ClipInfo
 from walkdiff.data.datasets import MotionSource
@@ -27,6 +26,7 @@ from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import encode
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Skeleton
+from walkdiff.progress import progress as progress_bar
 
 # Bump when encode() or the loaders change what they produce: old caches then rebuild.
 FEATURES_VERSION = 2
@@ -132,7 +132,7 @@ def preprocess(
 def _run(
     source, profile, clips: list[ClipInfo], fps: float, mirror: bool, workers: int, progress: bool
 ) -> list:
-    bar = tqdm(total=len(clips), desc=f"preprocessing {source.name}", unit="clip", disable=not progress)
+    bar = progress_bar(total=len(clips), desc=f"preprocessing {source.name}", unit="clip", show=progress)
     args = [(source, profile.to_dict(), clip, fps, mirror) for clip in clips]
     if workers <= 1:
         results = []

@@ -49,6 +49,17 @@ LOG_FLOOR = 1e-10  # added to the mel power before the log: digital silence stay
 # ---------------------------------------------------------------- audio
 
 
+def wav_seconds(path: str | Path) -> float:
+    """The duration of an audio file from its header, without reading its samples."""
+    import soundfile
+
+    try:
+        info = soundfile.info(str(path))
+    except (OSError, RuntimeError, soundfile.LibsndfileError) as error:
+        raise WalkdiffError(f"cannot read the audio file ({error})", path=path) from None
+    return info.frames / info.samplerate
+
+
 def read_wav(path: str | Path) -> tuple[np.ndarray, int]:
     """Mono float32 samples and the sample rate (channels are averaged)."""
     import soundfile

@@ -3,6 +3,7 @@ DPM-Solver++), guidance."""
 
 from walkdiff.diffusion.gaussian import PREDICTIONS, GaussianDiffusion, extract
 from walkdiff.diffusion.samplers import (
+    Progress,
     SamplerSteps,
     ddim_sample,
     ddpm_sample,
@@ -21,6 +22,7 @@ __all__ = [
     "PREDICTIONS",
     "SCHEDULES",
     "GaussianDiffusion",
+    "Progress",
     "SamplerSteps",
     "beta_schedule",
     "cosine_alphas_cumprod",

@@ -19,6 +19,7 @@ is zero and the previous pose there is the mean pose (0 after normalisation), in
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -283,12 +284,17 @@ class DiffMotion(AutoregressiveDiffusion):
 
     @torch.inference_mode()  # ~15% faster than no_grad for these ~5,000 small ops a frame
     def generate(
-        self, audio: torch.Tensor, generator: torch.Generator | None = None, streams: int = 1
+        self,
+        audio: torch.Tensor,
+        generator: torch.Generator | None = None,
+        streams: int = 1,
+        on_frame: Callable[[int, int], None] | None = None,
     ) -> torch.Tensor:
         """Poses (B * streams, F, D) in feature units from raw log-mel audio (B, F, M) or (F, M).
 
         Each take is repeated `streams` times (stream k of take b is row b * streams + k), and all rows
-        are generated together, frame by frame, carrying the LSTM state.
+        are generated together, frame by frame, carrying the LSTM state. `on_frame(done, total)` is
+        called after every frame (a progress bar).
         """
         if audio.ndim == 2:
             audio = audio.unsqueeze(0)
@@ -305,4 +311,6 @@ class DiffMotion(AutoregressiveDiffusion):
             x = self.sample_frame(h[:, 0], tables, generator)
             poses[:, f] = x
             previous = x.unsqueeze(1)
+            if on_frame is not None:
+                on_frame(f + 1, frames)
         return self.normalizer.denormalize(poses)

@@ -15,6 +15,8 @@ requested speed, so drifting off the path shows up as a path that bends back, wh
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 from torch import nn
@@ -141,8 +143,10 @@ class PathWalker(AutoregressiveDiffusion):
         speed: torch.Tensor,
         frames: int,
         generator: torch.Generator | None = None,
+        on_frame: Callable[[int, int], None] | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
-        """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames.
+        """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames;
+        `on_frame(done, total)` is called after every frame (a progress bar).
 
         Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
         """
@@ -172,4 +176,6 @@ class PathWalker(AutoregressiveDiffusion):
             previous = x.unsqueeze(1)
             raw = self.normalizer.denormalize(x).double().cpu().numpy()
             position, heading = advance_root(position, heading, raw, self.layout)
+            if on_frame is not None:
+                on_frame(f + 1, frames)
         return self.normalizer.denormalize(poses).cpu().numpy(), (start.copy(), start_heading)

@@ -42,6 +42,7 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from walkdiff.diffusion import (
     GaussianDiffusion,
+    Progress,
     ddim_sample,
     ddpm_sample,
     dpm_solver_sample,
@@ -366,7 +367,7 @@ class StyledMotionDiffusion(MotionModule):
         guidance: float = 1.0,
         generator: torch.Generator | None = None,
         inpaint: tuple[torch.Tensor, torch.Tensor] | None = None,
-        progress: bool = False,
+        progress: Progress = False,
     ) -> torch.Tensor:
         """Normalised feature windows (B, frames, D) from the EMA denoiser.
 

@@ -8,12 +8,13 @@ with the file, the line and what was expected.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_text
+from walkdiff.files import write_atomic
 from walkdiff.motion.rotations import euler_to_matrix, matrix_to_euler
 from walkdiff.motion.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
@@ -291,8 +292,29 @@ def _motion_to_channels(motion: Motion) -> np.ndarray:
     return values
 
 
+FRAMES_PER_CHUNK = 2000  # frames converted to text at a time: long clips are written in bounded memory
+
+
 def format_bvh(motion: Motion, precision: int = 6) -> str:
     """BVH text of `motion`: values with `precision` decimals, each joint's channels in its own order."""
+    return "".join(_bvh_chunks(motion, precision))
+
+
+def write_bvh(path: str | Path, motion: Motion, precision: int = 6) -> None:
+    """Write atomically: a temporary file in the same folder replaces `path` only once complete.
+
+    The text goes out a chunk of frames at a time, so a clip of any length is never held as one string.
+    """
+
+    def save(f) -> None:
+        for chunk in _bvh_chunks(motion, precision):
+            f.write(chunk.encode("utf-8"))
+
+    write_atomic(path, save)
+
+
+def _bvh_chunks(motion: Motion, precision: int) -> Iterator[str]:
+    """The hierarchy, then the frame rows FRAMES_PER_CHUNK at a time."""
     skeleton = motion.skeleton
     shape = (motion.num_frames, skeleton.num_joints)
     if motion.rotations.shape != (*shape, 3, 3) or motion.positions.shape != (*shape, 3):
@@ -326,11 +348,8 @@ def format_bvh(motion: Motion, precision: int = 6) -> str:
     write_joint(0, 0)
     # repr keeps the frame time exactly as read (0.008333 stays 0.008333, 1/120 keeps all its digits).
     out.extend(["MOTION", f"Frames: {motion.num_frames}", f"Frame Time: {float(motion.frame_time)!r}"])
+    yield "\n".join(out) + "\n"
     row = " ".join([f"%.{precision}f"] * values_per_frame(skeleton))
-    out.extend(row % tuple(frame) for frame in _motion_to_channels(motion).tolist())
-    return "\n".join(out) + "\n"
-
-
-def write_bvh(path: str | Path, motion: Motion, precision: int = 6) -> None:
-    """Write atomically: a temporary file in the same folder replaces `path` only once complete."""
-    write_text(path, format_bvh(motion, precision))
+    for start in range(0, motion.num_frames, FRAMES_PER_CHUNK):
+        values = _motion_to_channels(motion.slice(start, start + FRAMES_PER_CHUNK))
+        yield "".join(row % tuple(frame) + "\n" for frame in values.tolist())

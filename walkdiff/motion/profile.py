@@ -76,6 +76,8 @@ OVERRIDE_FIELDS = (
     "body_height", "contact_speed", "contact_height", "mirror_pairs",
 )  # fmt: skip
 
+TO_FILE_FRAMES = 4096  # frames converted at a time by SkeletonProfile.to_file
+
 
 @dataclass(frozen=True)
 class ContactSpec:
@@ -573,7 +575,22 @@ class SkeletonProfile:
         return Motion(self.canonical_skeleton, rotations, positions, motion.frame_time)
 
     def to_file(self, motion: Motion) -> Motion:
-        """A canonical clip back on the file's skeleton, axes and static joints."""
+        """A canonical clip back on the file's skeleton, axes and static joints.
+
+        Every frame is converted on its own: a long clip goes TO_FILE_FRAMES frames at a time into the
+        result, so its temporaries stay small.
+        """
+        frames, joints = motion.num_frames, self.skeleton.num_joints
+        if frames <= TO_FILE_FRAMES:
+            return self._to_file(motion)
+        rotations, positions = np.empty((frames, joints, 3, 3)), np.empty((frames, joints, 3))
+        for start in range(0, frames, TO_FILE_FRAMES):
+            part = self._to_file(motion.slice(start, start + TO_FILE_FRAMES))
+            rotations[start : start + len(part.rotations)] = part.rotations
+            positions[start : start + len(part.positions)] = part.positions
+        return Motion(self.skeleton, rotations, positions, motion.frame_time)
+
+    def _to_file(self, motion: Motion) -> Motion:
         s, u, body = self.skeleton, self.turn, self.body
         frames = motion.num_frames
         rotations = np.repeat(np.eye(3)[None, None], frames, axis=0).repeat(s.num_joints, axis=1)

@@ -186,6 +186,9 @@ def features_to_positions(
     return forward_kinematics(rotations, positions, parents)
 
 
+DECODE_FRAMES = 4096
+
+
 def decode(
     features: np.ndarray,
     skeleton: Skeleton,
@@ -207,7 +210,12 @@ def decode(
     heading, root = root_trajectory(x, start_position, start_heading)
     positions = np.repeat(skeleton.offsets[None], x.shape[0], axis=0)
     positions[:, 0] = root.numpy()
-    return Motion(skeleton, _local_rotations(x, heading).numpy(), positions, frame_time)
+    # Rotations are per frame: made DECODE_FRAMES at a time, a long clip's temporaries stay small.
+    rotations = np.empty((x.shape[0], skeleton.num_joints, 3, 3))
+    for start in range(0, x.shape[0], DECODE_FRAMES):
+        stop = start + DECODE_FRAMES
+        rotations[start:stop] = _local_rotations(x[start:stop], heading[start:stop]).numpy()
+    return Motion(skeleton, rotations, positions, frame_time)
 
 
 class Normalizer(nn.Module):
