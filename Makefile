@@ -38,7 +38,7 @@ train: install $(EVALUATOR)
 	$(VENV)/bin/walkdiff fit --config $$cfg
 
 ui: install
-	@echo "MLflow UI on http://127.0.0.1:5000 (Ctrl-C to stop)"
+	@echo "MLflow UI: open http://127.0.0.1:5000/#/experiments?workflowType=machine_learning (Ctrl-C to stop)"
 	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow server \
 	  --backend-store-uri $(MLFLOW_DB) --default-artifact-root ./mlruns/artifacts \
 	  --host 127.0.0.1 --port 5000 --workers 1
