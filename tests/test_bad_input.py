@@ -85,6 +85,8 @@ CASES = {
     ),
     "bench with no output": (["bench", "data"], ["--out"]),
     "an unknown command": (["train"], ["train", "choose from"]),
+    "view a missing file": (["view", "missing.bvh", "--port", "0"], ["missing.bvh"]),
+    "view a truncated BVH": (["view", "text.bvh", "--port", "0"], ["text.bvh"]),
     "an unknown option": (["sample", "--ckpt", "g", "--out", "o", *STYLE, "--colour", "red"], ["--colour"]),
 }
 for command in CHECKPOINT_USERS:

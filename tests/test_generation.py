@@ -199,7 +199,7 @@ def test_noised_steps_start_at_strength():
     assert (Sampling().order, Sampling("ddim", 10).order, Sampling("dpmpp", 10).order) == (1, 1, 2)
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling("dpmpp", 10))  # even in log-SNR below t0
     assert (t0, steps, eta) == (59, log_snr_timesteps(Fake.diffusion, 6, first=59), 0.0)
-    with pytest.raises(WalkdiffError, match="--eta applies to DDIM only"):
+    with pytest.raises(WalkdiffError, match="--eta applies to ddim only"):
         Sampling("dpmpp", 10, eta=0.5)
     with pytest.raises(WalkdiffError, match="expected one of ddpm, ddim, dpmpp"):
         Sampling("euler")
@@ -404,7 +404,7 @@ def test_a_long_sample_gets_a_capped_preview_that_the_manifest_and_console_state
     assert preview == {"seconds": 1.0, "of_seconds": 4.0, "capped": True, "note": "first 1 s of 4 s"}
     assert "preview: first 1 s of 4 s" in capsys.readouterr().out
     assert main([*args, "--overwrite", "--preview-seconds", "nan"]) == 1
-    assert "--preview-seconds must be a positive number" in capsys.readouterr().err
+    assert "--preview-seconds: expected a finite number in (0, inf]" in capsys.readouterr().err
 
 
 def test_sample_shows_progress_on_stderr_unless_turned_off(ckpt, tmp_path, capsys, monkeypatch):

@@ -6,6 +6,7 @@ import json
 import os
 import platform
 import statistics
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -689,25 +690,41 @@ def run(args) -> None:
 # ---------------------------------------------------------------- memory
 
 
-def peak_rss(command: list[str], env: dict | None = None) -> tuple[int, float, int]:
-    """Run `command` in a subprocess: (its exit code, its peak resident memory in bytes, seconds).
+# Runs a walkdiff command and, as it exits, writes the peak resident memory of its own address space
+# (VmHWM). The rusage of a child is no measure: Linux carries the high-water mark of the process that
+# forked it across exec, so a child of a big process (a test session) reports at least that one's size.
+_PEAK_WRAPPER = """\
+import atexit, sys
+from pathlib import Path
+report = Path(sys.argv.pop(1))
+def write_peak():
+    status = Path("/proc/self/status").read_text().splitlines()
+    report.write_text(next(line.split()[1] for line in status if line.startswith("VmHWM:")))
+atexit.register(write_peak)
+from walkdiff.cli import main
+sys.argv[0] = "walkdiff"
+sys.exit(main(sys.argv[1:]))
+"""
 
-    os.wait4 gives that one child's rusage (ru_maxrss, in KiB on Linux), where RUSAGE_CHILDREN would
-    give the largest of all children waited for so far.
-    """
+
+def peak_rss(args: list[str], env: dict | None = None) -> tuple[int, float, float]:
+    """Run `walkdiff ARGS` in a subprocess: (its exit code, its peak resident memory in bytes, seconds)."""
     import subprocess
 
     started = time.perf_counter()
-    child = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    with child.stderr:
-        stderr = child.stderr.read()
-    _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    if child.returncode != 0:
-        raise WalkdiffError(
-            f"benchmark run failed ({child.returncode}): {' '.join(command)}\n{stderr.decode()[-2000:]}"
-        )
-    return child.returncode, usage.ru_maxrss * 1024, time.perf_counter() - started
+    with tempfile.TemporaryDirectory() as tmp:
+        report = Path(tmp) / "peak"
+        child = subprocess.run(
+            [sys.executable, "-c", _PEAK_WRAPPER, str(report), *args],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        )  # fmt: skip
+        if child.returncode != 0 or not report.exists():
+            raise WalkdiffError(
+                f"benchmark run failed ({child.returncode}): walkdiff {' '.join(args)}\n"
+                + child.stderr.decode()[-2000:]
+            )
+        peak = int(report.read_text()) * 1024  # kB
+    return child.returncode, peak, time.perf_counter() - started
 
 
 def bench_memory(
@@ -727,7 +744,6 @@ def bench_memory(
     The windows are denoised with DDIM over one step: memory does not depend on the sampler or its steps
     (one window is denoised at a time), and 100,000 frames of DDPM would take hours.
     """
-    import sys
 
     from walkdiff.generation import load_generator
     from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames, memory_limit
@@ -735,19 +751,18 @@ def bench_memory(
     style = load_generator(ckpt).spec["styles"][0]
     env = os.environ | {"WALKDIFF_PROGRESS": "0"}
     rows = []
-    walkdiff = [sys.executable, "-m", "walkdiff.cli"]
     with tempfile.TemporaryDirectory() as tmp:
         extra = {}
         if walker is not None:
-            extra["walk"] = [_walk_memory(walkdiff, walker, s, Path(tmp), env) for s in seconds]
+            extra["walk"] = [_walk_memory(walker, s, Path(tmp), env) for s in seconds]
         if gesture is not None:
             if audio is None:
                 raise WalkdiffError("bench memory: --gesture needs --audio (a speech WAV to repeat)")
-            extra["gesture"] = [_gesture_memory(walkdiff, gesture, audio, s, Path(tmp), env) for s in seconds]
+            extra["gesture"] = [_gesture_memory(gesture, audio, s, Path(tmp), env) for s in seconds]
         for n in progress(frames, desc="bench memory", unit="run"):
             estimate = check_frames("--frames", n, SAMPLE_BYTES_PER_FRAME)
             command = [
-                *walkdiff, "sample", "--ckpt", str(ckpt), "--out", f"{tmp}/{n}",
+                "sample", "--ckpt", str(ckpt), "--out", f"{tmp}/{n}",
                 "--style", style, "--num", "1", "--frames", str(n), "--sampler", "ddim", "--steps", "1",
             ]  # fmt: skip
             _, peak, seconds = peak_rss(command, env)
@@ -776,7 +791,7 @@ def bench_memory(
     return result
 
 
-def _walk_memory(walkdiff: list[str], ckpt: str, seconds: int, tmp: Path, env: dict) -> dict:
+def _walk_memory(ckpt: str, seconds: int, tmp: Path, env: dict) -> dict:
     """Peak memory of `walkdiff walk` along a straight path walked in `seconds` at 1.2 m/s."""
     from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
     from walkdiff.walk import load_walker
@@ -787,7 +802,6 @@ def _walk_memory(walkdiff: list[str], ckpt: str, seconds: int, tmp: Path, env: d
     frames = round(seconds * model.spec["fps"]) + 1
     style = model.spec["styles"][0]
     command = [
-        *walkdiff,
         "walk",
         "--ckpt",
         ckpt,
@@ -808,7 +822,7 @@ def _walk_memory(walkdiff: list[str], ckpt: str, seconds: int, tmp: Path, env: d
     }
 
 
-def _gesture_memory(walkdiff: list[str], ckpt: str, audio: str, seconds: int, tmp: Path, env: dict) -> dict:
+def _gesture_memory(ckpt: str, audio: str, seconds: int, tmp: Path, env: dict) -> dict:
     """Peak memory of `walkdiff gesture` on `audio` repeated (or cut) to `seconds`."""
     import soundfile
 
@@ -821,7 +835,7 @@ def _gesture_memory(walkdiff: list[str], ckpt: str, audio: str, seconds: int, tm
     wav = tmp / f"speech_{seconds}s.wav"
     soundfile.write(str(wav), long, rate)
     fps = load_model(ckpt).spec["fps"]
-    command = [*walkdiff, "gesture", "--ckpt", ckpt, "--audio", str(wav), "--out", str(tmp / wav.stem)]
+    command = ["gesture", "--ckpt", ckpt, "--audio", str(wav), "--out", str(tmp / wav.stem)]
     _, peak, spent = peak_rss(command, env)
     return {
         "command": f"walkdiff gesture --audio <{seconds} s of speech>",
