@@ -179,6 +179,14 @@ def test_gesture_states_its_preview_and_refuses_audio_too_long_for_memory(
     }
     with Image.open(tmp_path / "out" / "b.gif") as gif:
         assert gif.n_frames == 40  # 2 s at 20 fps, both streams side by side
+    import av
+
+    # The MP4 beside it plays the same 2 s with the speech that drove them.
+    with av.open(str(tmp_path / "out" / "b.mp4")) as video:
+        picture, speech = video.streams.video[0], video.streams.audio[0]
+        assert sum(1 for _ in video.decode(video=0)) == 40
+        assert float(speech.duration * speech.time_base) == pytest.approx(2.0, abs=0.07)
+        assert float(picture.duration * picture.time_base) == pytest.approx(2.0)
     room = (memory.BASE_BYTES + 100 * memory.GESTURE_BYTES_PER_FRAME) / 1e9  # 100 frames of one stream
     monkeypatch.setenv("WALKDIFF_MEMORY_LIMIT_GB", str(room))
     assert main([*args[:-1], str(tmp_path / "refused")]) == 1
@@ -236,5 +244,5 @@ def test_sample_callback_writes_held_out_audio_clips(trained, tmp_path):
     model = load_model(trained[0])
     dm = SpeechDataModule(str(trained[1]), window=40, past=5, lookahead=8)
     files = GestureSamples(seconds=1.0).write(model, dm, None, "samples/epoch_0001", folder=tmp_path)
-    assert [f.name for f in files] == ["a.bvh", "a.gif"]
+    assert [f.name for f in files] == ["a.bvh", "a.gif", "a.mp4"]
     assert read_bvh(files[0]).num_frames == 20

@@ -173,7 +173,10 @@ def test_minutes_is_a_safety_net_that_says_how_much_was_done(teacher_ckpt, tmp_p
     assert record["stopped_by_minutes"] and 1 <= record["batches"] < 40 and record["planned_batches"] == 40
     message = f"--minutes 0.01 stopped distillation after {record['batches']} of 40 batches"
     assert message in printed.err
-    for bad, said in (("0", "--minutes: expected a finite number in (0, inf]"), ("nan", "--minutes: expected a finite number")):
+    for bad, said in (
+        ("0", "--minutes: expected a finite number in (0, inf]"),
+        ("nan", "--minutes: expected a finite number"),
+    ):
         assert main([*args, "--minutes", bad, "--overwrite"]) == 1
         assert said in capsys.readouterr().err
     assert main([*args[:-1], "0", "--overwrite"]) == 1

@@ -235,8 +235,9 @@ def test_sample_command_writes_bvh_gif_manifest_and_refuses_to_overwrite(ckpt, m
     assert main(args) == 0
     names = sorted(p.name for p in out.iterdir())
     assert names == [
-        "angry70+old30_walk_000.bvh", "angry70+old30_walk_000.gif", "angry70+old30_walk_001.bvh",
-        "angry70+old30_walk_001.gif", "manifest.json",
+        "angry70+old30_walk_000.bvh", "angry70+old30_walk_000.gif", "angry70+old30_walk_000.mp4",
+        "angry70+old30_walk_001.bvh", "angry70+old30_walk_001.gif", "angry70+old30_walk_001.mp4",
+        "manifest.json",
     ]  # fmt: skip
     clip = read_bvh(out / "angry70+old30_walk_000.bvh")
     assert clip.num_frames == 40 and clip.fps == pytest.approx(30.0)

@@ -24,7 +24,7 @@ import torch
 
 from walkdiff.diffusion import log_snr_timesteps, respace, run_steps, step_coefficients
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import output_folder, write_json
+from walkdiff.files import check_free, output_folder, write_json
 from walkdiff.footfix import fix_feet
 from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.motion.bvh import read_bvh, write_bvh
@@ -327,13 +327,6 @@ def load_generator(path: str | Path, device: str = "cpu"):
     return StyledMotionDiffusion.from_trained(path, "generator", device)
 
 
-def _check_free(paths: list[Path], overwrite: bool) -> None:
-    taken = [str(p) for p in paths if p.exists()]
-    if taken and not overwrite:
-        more = f" and {len(taken) - 3} more" if len(taken) > 3 else ""
-        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}{more}; pass --overwrite to replace them")
-
-
 def _finish(model, raw: np.ndarray, start: tuple[np.ndarray, float] | None, feet: bool) -> Motion:
     """Features in data units (F, D) -> a clip on the training skeleton, feet cleaned up if asked."""
     fps = model.spec["fps"]
@@ -353,8 +346,8 @@ def _write_clip(
     cap: PreviewCap | None,
     others: tuple[tuple[Motion, str], ...] = (),
 ) -> None:
-    """A canonical clip as BVH on the training files' skeleton; the GIF (unless `cap` is None) shows the
-    canonical (Y-up) clip's first seconds, only whose joint positions are computed."""
+    """A canonical clip as BVH on the training files' skeleton; the GIF and MP4 previews (unless `cap` is
+    None) show the canonical (Y-up) clip's first seconds, only whose joint positions are computed."""
     write_bvh(path, model.to_file(motion))
     if cap is not None:
         clips = [*others, (motion, title)]
@@ -367,6 +360,7 @@ def _write_clip(
             names=motion.skeleton.names,
             titles=[t for _, t in clips],
             cap=cap,
+            video=True,
         )
 
 
@@ -406,7 +400,8 @@ def sample(
     names = [f"{label}_{content}_{i:03d}" for i in range(num)]
     manifest_path = out / "manifest.json"
     bvh = [out / f"{n}.bvh" for n in names]
-    _check_free(bvh + [p.with_suffix(".gif") for p in bvh if gif] + [manifest_path], overwrite)
+    previews = [p.with_suffix(suffix) for p in bvh for suffix in (".gif", ".mp4")] if gif else []
+    check_free(bvh + previews + [manifest_path], overwrite)
     overlap, blend = resolve_windows(model.spec["window"], overlap, blend)
     window_plan(frames, model.spec["window"], overlap)
 
@@ -492,7 +487,8 @@ def transfer(
     out = output_folder(out)
     target = out / f"{input.stem}_to_{label}.bvh"
     report_path = target.with_suffix(".json")
-    _check_free([target, report_path] + ([target.with_suffix(".gif")] if gif else []), overwrite)
+    previews = [target.with_suffix(".gif"), target.with_suffix(".mp4")] if gif else []
+    check_free([target, report_path, *previews], overwrite)
 
     source = model.normalizer.normalize(torch.from_numpy(encode(motion, model.profile)))[None]
     generator = torch.Generator(device=model.device).manual_seed(seed)

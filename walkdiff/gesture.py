@@ -30,7 +30,7 @@ from scipy.signal import argrelmin
 
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import output_folder, write_json
+from walkdiff.files import check_free, output_folder, write_json
 from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
 from walkdiff.metrics import Jitter
 from walkdiff.motion.bvh import write_bvh
@@ -81,10 +81,16 @@ def joint_positions(model, features: np.ndarray) -> np.ndarray:
 
 
 def write_clips(
-    out: Path, stem: str, model, clips: list[np.ndarray], titles: list[str], cap: PreviewCap = DEFAULT_PREVIEW
+    out: Path,
+    stem: str,
+    model,
+    clips: list[np.ndarray],
+    titles: list[str],
+    cap: PreviewCap = DEFAULT_PREVIEW,
+    audio: tuple[np.ndarray, int] | None = None,
 ) -> tuple[list[Path], dict]:
-    """One BVH per clip of features and one GIF with the first seconds of all of them side by side;
-    the files and what the preview shows (`PreviewCap.describe`)."""
+    """One BVH per clip of features, and a GIF and an MP4 (with `audio`, the speech, as its sound) of the
+    first seconds of all of them side by side; the files and what the preview shows."""
     out.mkdir(parents=True, exist_ok=True)
     fps = model.spec["fps"]
     shown = cap.frames(max(len(c) for c in clips), fps, len(clips))
@@ -97,8 +103,11 @@ def write_clips(
         positions.append(motion_world_positions(motion.slice(0, shown)))
     gif = out / f"{stem}.gif"
     skeleton = model.skeleton
-    render_gif(gif, positions, skeleton.parents, fps, names=skeleton.names, titles=titles, cap=cap)
-    return files + [gif], cap.describe(max(len(c) for c in clips), fps, len(clips))
+    render_gif(
+        gif, positions, skeleton.parents, fps, names=skeleton.names, titles=titles, cap=cap, video=True,
+        audio=audio,
+    )  # fmt: skip
+    return files + [gif, gif.with_suffix(".mp4")], cap.describe(max(len(c) for c in clips), fps, len(clips))
 
 
 def gesture(
@@ -118,9 +127,7 @@ def gesture(
     titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
     stem, out = Path(audio).stem, output_folder(out)
     targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
-    taken = [str(p) for p in [*targets, Path(out) / f"{stem}.gif"] if p.exists()]
-    if taken and not overwrite:
-        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}; pass --overwrite to replace them")
+    check_free([*targets, Path(out) / f"{stem}.gif", Path(out) / f"{stem}.mp4"], overwrite)
     model = load_model(ckpt)
     # From the file's header, so a WAV too long is refused before its samples are read; one frame per hop
     # and one more, as log_mel's centred frames.
@@ -131,7 +138,7 @@ def gesture(
     start = time.perf_counter()
     clips = synthesize(model, mel, streams, seed, smooth)
     elapsed = time.perf_counter() - start
-    files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap)
+    files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate))
     return {
         "frames": len(mel),
         "seconds": len(mel) / model.spec["fps"],

@@ -1,4 +1,4 @@
-"""Stick-figure previews of motion: an animated GIF, or a PNG filmstrip of key poses.
+"""Stick-figure previews of motion: an animated GIF (and the same as MP4), or a PNG filmstrip of key poses.
 
 A fixed three-quarter camera looks at each clip and follows its root horizontally, so that long walks stay
 in frame; the ground grid is fixed in the world and scrolls underneath, and the root's recent path is drawn
@@ -99,6 +99,8 @@ def render_gif(
     size: tuple[int, int] = (320, 320),
     trail: bool = True,
     cap: PreviewCap = DEFAULT_PREVIEW,
+    video: bool = False,
+    audio: tuple[np.ndarray, int] | None = None,
 ) -> Path:
     """Write an animated GIF of one or more clips side by side and return its path.
 
@@ -110,6 +112,8 @@ def render_gif(
     max_fps: frames are skipped so that the GIF plays at most this fast, at the clip's real speed.
     size: (width, height) of one panel in pixels.
     cap: the clips' first seconds shown (`PreviewCap.describe` says how much, for a manifest).
+    video: also write the same frames as an MP4 beside it (`path` with .mp4), with `audio` (mono
+        samples, rate) from the clip's start as its sound, cut to the preview's length.
     """
     clips, parents = _check_clips(positions, parents, names, titles, colors, size)
     if not (math.isfinite(fps) and fps > 0):
@@ -142,6 +146,13 @@ def render_gif(
     def save(f: IO[bytes]) -> None:
         frames[0].save(f, format="GIF", save_all=True, append_images=frames[1:], duration=delays, loop=0)
 
+    if video:
+        from walkdiff.video import write_mp4
+
+        if audio is not None:
+            samples, rate = audio
+            audio = (samples[: round(len(frames) * step / fps * rate)], rate)
+        write_mp4(Path(path).with_suffix(".mp4"), frames, fps / step, audio)
     return write_atomic(path, save)
 
 

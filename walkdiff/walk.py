@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from walkdiff.errors import WalkdiffError
-from walkdiff.files import output_folder, write_atomic, write_json
+from walkdiff.files import check_free, output_folder, write_atomic, write_json
 from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -127,8 +127,8 @@ def walk(
     out = output_folder(out)
     stem = f"{style}_{Path(path).stem}"
     bvh = out / f"{stem}.bvh"
-    if bvh.exists() and not overwrite:
-        raise WalkdiffError("exists; pass --overwrite to replace it", path=bvh)
+    written = [bvh, out / f"{stem}_path.png", out / f"{stem}.json"]
+    check_free(written + ([bvh.with_suffix(".gif"), bvh.with_suffix(".mp4")] if gif else []), overwrite)
     out.mkdir(parents=True, exist_ok=True)
 
     started = time.perf_counter()
@@ -141,11 +141,11 @@ def walk(
     if cap is not None:
         skeleton = model.skeleton
         positions = motion_world_positions(motion.slice(0, cap.frames(motion.num_frames, motion.fps)))
-        files.append(
-            render_gif(
-                out / f"{stem}.gif", [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap
-            )
-        )
+        gif = render_gif(
+            out / f"{stem}.gif", [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap,
+            video=True,
+        )  # fmt: skip
+        files += [gif, gif.with_suffix(".mp4")]
     manifest = {
         "checkpoint": str(ckpt),
         "style": style,
