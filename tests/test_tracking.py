@@ -30,9 +30,13 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
         "init_args": {"dirpath": "checkpoints/glance", "filename": "best-{epoch:04d}", "monitor": "val/loss"},
     }
     slow = {"class_path": "probes.SleepEachBatch", "init_args": {"seconds": 0.4}}  # > 1 s: system metrics
+    samples = {
+        "class_path": "walkdiff.callbacks.samples.SampleClips",
+        "init_args": {"every_n_epochs": 1, "sampler": "ddim", "steps": 2, "seconds": 2},
+    }
     config = tmp_path / "glance.yaml"
     config.write_text(
-        probes.tiny_fit_config(tiny_root, "glance", epochs=2, batches=2, callbacks=[best, slow])
+        probes.tiny_fit_config(tiny_root, "glance", epochs=2, batches=2, callbacks=[best, slow, samples])
     )
     for _ in range(2):
         assert main(["fit", "--config", str(config)]) == 0
@@ -71,6 +75,15 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     assert len(run.data.tags["mlflow.source.git.commit"]) == 40
     assert run.data.tags["walkdiff.git_dirty"] in ("true", "false")
     assert any(key.startswith("system/cpu_utilization") for key in run.data.metrics), run.data.metrics.keys()
+
+    # The styles' filmstrip as an image at each validation's step (MLflow's image view steps through them).
+    images = [a.path for a in client.list_artifacts(run.info.run_id, "images")]
+    filmstrips = [
+        path for path in images if path.startswith("images/samples~styles+step+") and path.endswith(".png")
+    ]
+    assert len(filmstrips) == 2, images  # epochs 1 and 2
+    epochs = {a.path for a in client.list_artifacts(run.info.run_id, "samples")}
+    assert epochs == {"samples/epoch_0001", "samples/epoch_0002"}
 
     files = {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")}
     assert files == {"checkpoints/best.ckpt", "checkpoints/last.ckpt", "checkpoints/index.json"}
