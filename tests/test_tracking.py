@@ -90,3 +90,12 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     index = json.loads(Path(client.download_artifacts(run.info.run_id, "checkpoints/index.json")).read_text())
     assert index["best.ckpt"]["monitor"] == "val/loss" and index["best.ckpt"]["score"] > 0
     assert index["last.ckpt"]["monitor"] is None
+
+    # Every checkpoint names the run that wrote it; a run that uses it (a generator's metrics use the
+    # evaluator's) is tagged with that run.
+    from walkdiff.callbacks.tracking import checkpoint_tags
+
+    newest = max(runs, key=lambda r: r.info.start_time)
+    tags = checkpoint_tags(tmp_path / "checkpoints" / "glance" / "last.ckpt", "evaluator")
+    assert tags["walkdiff.evaluator_run"] == f"{experiment.experiment_id}/{newest.info.run_id}"
+    assert tags["walkdiff.evaluator_checkpoint"].endswith(f"{newest.info.run_id}/last.ckpt")

@@ -11,6 +11,8 @@ import torch
 from matplotlib.figure import Figure
 from torchmetrics.classification import MulticlassConfusionMatrix
 
+from walkdiff.callbacks.checkpoints import mlflow_logger
+from walkdiff.callbacks.tracking import checkpoint_tags
 from walkdiff.errors import WalkdiffError
 from walkdiff.evaluation import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
 from walkdiff.tracking import log_file
@@ -66,6 +68,10 @@ class MotionMetrics(L.Callback):
                 "(walkdiff fit --config conf/evaluator_xia.yaml)",
                 path=self.evaluator_ckpt,
             )
+        logger = mlflow_logger(trainer)
+        if logger is not None and trainer.is_global_zero:  # which evaluator judged this run, and its run
+            for key, value in checkpoint_tags(self.evaluator_ckpt, "evaluator").items():
+                logger.experiment.set_tag(logger.run_id, key, value)
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         epoch = trainer.current_epoch + 1

@@ -7,6 +7,7 @@
 - System metrics (CPU, memory, GPU) every 10 s, by MLflow's own monitor.
 - The best and last checkpoint of every RunCheckpoint, logged once at the end of training under
   `checkpoints/` with what they were chosen by (Lightning's logger logs one callback's only).
+- In every checkpoint, the run that wrote it, so that a generator's run names its evaluator's.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from walkdiff.callbacks.checkpoints import RunCheckpoint, mlflow_logger
 from walkdiff.tracking import close_dead_runs, tag_process
 
 EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
+RUN_KEY = "walkdiff_mlflow_run"  # in checkpoints: the run that wrote them
 SYSTEM_METRICS_SECONDS = 10
 SOURCE = Path(__file__).resolve().parents[2]  # walkdiff's checkout, when installed from one
 
@@ -86,6 +88,16 @@ class RunTracking(Callback):
             log_checkpoints(logger, trainer.checkpoint_callbacks)
         self._stop_monitor()
 
+    def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
+        # So that runs using this checkpoint (a generator's metrics use the evaluator's) can name its run.
+        logger = mlflow_logger(trainer)
+        if logger is not None:
+            checkpoint[RUN_KEY] = {
+                "run_id": logger.run_id,
+                "experiment_id": logger.experiment_id,
+                "tracking_uri": logger.experiment.tracking_uri,
+            }
+
     def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
         self._stop_monitor()
 
@@ -120,3 +132,16 @@ def log_checkpoints(logger, callbacks) -> None:
             path = Path(tmp) / "index.json"
             path.write_text(json.dumps(index, indent=2) + "\n")
             logger.experiment.log_artifact(logger.run_id, str(path), "checkpoints")
+
+
+def checkpoint_tags(path: str | Path, role: str) -> dict[str, str]:
+    """Tags naming a checkpoint a run uses (`walkdiff.<role>_checkpoint`) and, when it was written by a
+    `walkdiff fit` tracked in MLflow, that run (`walkdiff.<role>_run`: experiment id / run id)."""
+    import torch
+
+    path = Path(path)
+    tags = {f"walkdiff.{role}_checkpoint": str(path.resolve())}
+    run = torch.load(path, map_location="cpu", weights_only=False).get(RUN_KEY)
+    if run:
+        tags[f"walkdiff.{role}_run"] = f"{run['experiment_id']}/{run['run_id']}"
+    return tags
