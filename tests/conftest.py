@@ -30,3 +30,10 @@ def xia_dir() -> Path:
 @pytest.fixture(scope="session")
 def zeggs_dir() -> Path:
     return _real("zeggs")
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_tracking_uri(monkeypatch):
+    """Lightning's MLFlowLogger exports its URI as MLFLOW_TRACKING_URI for the rest of the process: each
+    test starts, and ends, with the environment it was given."""
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)

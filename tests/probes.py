@@ -33,7 +33,7 @@ class RecordSteps(L.Callback):
 
     def on_validation_epoch_end(self, trainer, pl_module):
         if not trainer.sanity_checking:
-            self.record["val_loss"].append(float(trainer.callback_metrics["val/loss"]))
+            self.record["val_loss"].append(float(trainer.callback_metrics["diffusion/val"]))
 
     def on_train_end(self, trainer, pl_module):
         lr = trainer.optimizers[0].param_groups[0]["lr"]

@@ -52,7 +52,7 @@ def trained(tmp_path_factory) -> tuple[Path, Path]:
     before = model.eps_net.output.weight.detach().clone()
     trainer.fit(model, dm)
     assert not torch.equal(before, model.eps_net.output.weight), "training did not update the eps network"
-    assert np.isfinite(float(trainer.callback_metrics["train/loss"]))
+    assert np.isfinite(float(trainer.callback_metrics["loss/train"]))
     ckpt = folder.parent / "tiny.ckpt"
     trainer.save_checkpoint(ckpt)
     return ckpt, folder

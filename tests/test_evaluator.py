@@ -125,14 +125,14 @@ def test_trains_on_real_windows_and_round_trips(xia_dir, tmp_path):
     trainer.callbacks.append(FirstLoss())
     trainer.fit(model, dm)
     metrics = trainer.callback_metrics
-    assert {"train/style_acc", "train/content_acc", "val/style_acc", "val/content_acc"} <= set(metrics)
-    assert float(metrics["train/loss_epoch"]) < 0.8 * first
+    assert {"style_acc/train", "content_acc/train", "style_acc/val", "content_acc/val"} <= set(metrics)
+    assert float(metrics["loss/train"]) < 0.8 * first
     # The evaluator took the data's normaliser and skeleton, fitted its own to the body features of the
     # training clips, and recognises its training windows.
     torch.testing.assert_close(model.normalizer.std, dm.normalizer.std)
     assert model.feature_normalizer.std.shape == (6 * 31 + 1,) and (model.feature_normalizer.std != 1).any()
     assert model.skeleton.same_hierarchy(dm.skeleton)
-    assert float(metrics["train/content_acc"]) > 0.6
+    assert float(metrics["content_acc/train"]) > 0.6
 
     raw = torch.from_numpy(dm.split_features("test")[0][2][:16]).unsqueeze(0)
     positions = model.raw_positions(raw.double()).float()
@@ -147,4 +147,4 @@ def test_trains_on_real_windows_and_round_trips(xia_dir, tmp_path):
     torch.testing.assert_close(loaded.features(positions), before, rtol=0, atol=0)
 
     result = tiny_trainer().test(loaded, dm, verbose=False)[0]
-    assert 0.0 <= result["test/style_acc"] <= 1.0 and 0.0 <= result["test/content_acc"] <= 1.0
+    assert 0.0 <= result["style_acc/test"] <= 1.0 and 0.0 <= result["content_acc/test"] <= 1.0

@@ -27,7 +27,11 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     monkeypatch.setattr("walkdiff.callbacks.tracking.SYSTEM_METRICS_SECONDS", 1)
     best = {
         "class_path": "walkdiff.callbacks.checkpoints.RunCheckpoint",
-        "init_args": {"dirpath": "checkpoints/glance", "filename": "best-{epoch:04d}", "monitor": "val/loss"},
+        "init_args": {
+            "dirpath": "checkpoints/glance",
+            "filename": "best-{epoch:04d}",
+            "monitor": "diffusion/val",
+        },
     }
     slow = {"class_path": "probes.SleepEachBatch", "init_args": {"seconds": 0.4}}  # > 1 s: system metrics
     samples = {
@@ -88,7 +92,7 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     files = {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")}
     assert files == {"checkpoints/best.ckpt", "checkpoints/last.ckpt", "checkpoints/index.json"}
     index = json.loads(Path(client.download_artifacts(run.info.run_id, "checkpoints/index.json")).read_text())
-    assert index["best.ckpt"]["monitor"] == "val/loss" and index["best.ckpt"]["score"] > 0
+    assert index["best.ckpt"]["monitor"] == "diffusion/val" and index["best.ckpt"]["score"] > 0
     assert index["last.ckpt"]["monitor"] is None
 
     # Every checkpoint names the run that wrote it; a run that uses it (a generator's metrics use the

@@ -43,7 +43,7 @@ class LossRecorder(L.Callback):
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
         metrics = trainer.callback_metrics
         self.losses.append(
-            (pl_module.batches_done, float(metrics["train/loss_step"]), float(metrics["train/loss_d_step"]))
+            (pl_module.batches_done, float(metrics["total/train"]), float(metrics["discriminator/train"]))
         )
 
 
@@ -149,6 +149,7 @@ def test_ddp_two_processes_through_the_cli(tiny_root, tmp_path):
         "--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu",
         "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
         "--trainer.check_val_every_n_epoch", "1", "--trainer.enable_progress_bar", "false",
+        "--trainer.log_every_n_steps", "1",
         "--model.d_model", "32", "--model.layers", "1", "--model.heads", "2",
         "--model.adv_warmup_batches", "0", "--data.batch_size", "4",
         # No metrics callback here (it needs a trained evaluator): just the latest checkpoint.
@@ -165,7 +166,7 @@ def test_ddp_two_processes_through_the_cli(tiny_root, tmp_path):
     runs = client.search_runs([e.experiment_id for e in client.search_experiments()])
     assert len(runs) == 1, "both ranks log into one run"
     metrics = runs[0].data.metrics
-    assert "train/loss_epoch" in metrics and "val/loss" in metrics
+    assert "total/train" in metrics and "diffusion/val" in metrics and "total/val" in metrics
     assert (tmp_path / "checkpoints" / "xia_cpu" / "last.ckpt").exists()
 
 

@@ -310,7 +310,7 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
       init_args:
         dirpath: {_yaml(directory)}
         filename: best
-        monitor: val/style_acc
+        monitor: style_acc/val
         mode: max
         save_top_k: 1
     # The latest epoch as last.ckpt: the generator's metrics use it.

@@ -85,12 +85,12 @@ class ActionEvaluator(PositionEvaluator):
         accuracy(logits, batch["content"])
         batch_size = inputs.shape[0]
         self.log(
-            f"{split}/loss", loss, on_step=split == "train", on_epoch=True, sync_dist=split != "train",
+            f"loss/{split}", loss, on_step=False, on_epoch=True, sync_dist=split != "train",
             batch_size=batch_size,
         )  # fmt: skip
         # Metric objects are reduced across ranks by torchmetrics itself.
         self.log(
-            f"{split}/action_acc", accuracy, on_step=False, on_epoch=True, prog_bar=split != "test",
+            f"action_acc/{split}", accuracy, on_step=False, on_epoch=True, prog_bar=split != "test",
             batch_size=batch_size,
         )  # fmt: skip
         return loss

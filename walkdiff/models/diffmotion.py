@@ -192,11 +192,11 @@ class AutoregressiveDiffusion(MotionModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True, batch_size=len(batch[self.sequence_key]))
+        self.log("loss/train", loss, prog_bar=True, batch_size=len(batch[self.sequence_key]))
         return loss
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
-        self.log("val/loss", self.loss(batch), prog_bar=True, batch_size=len(batch[self.sequence_key]))
+        self.log("loss/val", self.loss(batch), prog_bar=True, batch_size=len(batch[self.sequence_key]))
 
     def configure_optimizers(self):
         h = self.hparams

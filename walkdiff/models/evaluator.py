@@ -190,16 +190,17 @@ class MotionEvaluator(PositionEvaluator):
         style_acc(style_logits.argmax(-1), batch["style"])  # class ids: heads may have one class
         content_acc(content_logits.argmax(-1), batch["content"])
         batch_size = x.shape[0]
+        # `<term>/<split>`: a term's train and val charts side by side in MLflow; epoch means only.
         self.log_dict(
-            {f"{split}/loss": loss, f"{split}/loss_style": style_loss, f"{split}/loss_content": content_loss},
-            on_step=split == "train",
+            {f"loss/{split}": loss, f"style_loss/{split}": style_loss, f"content_loss/{split}": content_loss},
+            on_step=False,
             on_epoch=True,
             sync_dist=split != "train",
             batch_size=batch_size,
         )
         # Metric objects are reduced across ranks by torchmetrics itself.
         self.log_dict(
-            {f"{split}/style_acc": style_acc, f"{split}/content_acc": content_acc},
+            {f"style_acc/{split}": style_acc, f"content_acc/{split}": content_acc},
             on_step=False,
             on_epoch=True,
             prog_bar=split != "test",

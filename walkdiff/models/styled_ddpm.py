@@ -62,6 +62,10 @@ from walkdiff.spec import DataSpec
 log = logging.getLogger(__name__)
 
 
+# Discriminator terms as charted: its LSGAN loss and its mean outputs on real and generated windows.
+DISCRIMINATOR_TERMS = {"d": "discriminator", "d_real": "discriminator_real", "d_fake": "discriminator_fake"}
+
+
 class TrainingDiverged(RuntimeError):
     """A loss term became NaN or infinite; the message names the batch and the term."""
 
@@ -292,7 +296,7 @@ class StyledMotionDiffusion(MotionModule):
             self.clip_gradients(opt_d, gradient_clip_val=h.grad_clip, gradient_clip_algorithm="norm")
             opt_d.step()
             sched_d.step()
-            logs |= {f"train/loss_{k}" if k == "d" else f"train/{k}": v for k, v in d_losses.items()}
+            logs |= {f"{DISCRIMINATOR_TERMS[k]}/train": v for k, v in d_losses.items()}
 
         adversarial = self.discriminator is not None and self.batches_done >= h.adv_warmup_batches
         losses = self.generator_losses(batch, out, target, x0_hat, t, adversarial)
@@ -305,11 +309,13 @@ class StyledMotionDiffusion(MotionModule):
         sched_g.step()
         self.ema.update_parameters(self.denoiser)
 
-        logs |= {f"train/loss_{k}": v.detach() for k, v in losses.items()}
-        logs["train/loss"] = total.detach()
-        logs["train/lr"] = torch.tensor(sched_g.get_last_lr()[0])
+        # One metric per term, named `<term>/<split>` as in validation, so MLflow shows a term's train and
+        # val charts side by side; per step only (an epoch mean of the same numbers would chart them twice).
+        logs |= {f"{k}/train": v.detach() for k, v in losses.items()}
+        logs["total/train"] = total.detach()
+        logs["lr"] = torch.tensor(sched_g.get_last_lr()[0])
         self.log_dict(
-            logs, prog_bar=False, on_step=True, on_epoch=True, sync_dist=True, batch_size=x0.shape[0]
+            logs, prog_bar=False, on_step=True, on_epoch=False, sync_dist=True, batch_size=x0.shape[0]
         )
         self.log("loss", total.detach(), prog_bar=True, on_step=True, on_epoch=False, logger=False)
 
@@ -319,7 +325,7 @@ class StyledMotionDiffusion(MotionModule):
         out, target, x0_hat, t = self.denoise(batch, net=self.ema.module, generator=generator)
         losses = self.generator_losses(batch, out, target, x0_hat, t, adversarial=False)
         self.log_dict(
-            {f"val/loss_{k}": v for k, v in losses.items()} | {"val/loss": losses["diffusion"]},
+            {f"{k}/val": v for k, v in losses.items()} | {"total/val": self.total_loss(losses)},
             on_epoch=True,
             sync_dist=True,
             batch_size=batch["features"].shape[0],
