@@ -2,8 +2,20 @@
 
 A fixed three-quarter camera looks at each clip and follows its root horizontally, so that long walks stay
 in frame; the ground grid is fixed in the world and scrolls underneath, and the root's recent path is drawn
-on the ground as a fading trail. Several clips are shown side by side at one common scale. Drawing goes
-straight into a palette ("P") image, which needs no colour quantisation and keeps GIF writing fast.
+on the ground as a fading trail. Several clips are shown side by side (or in rows of `columns`) at one
+common scale. Drawing goes straight into a palette ("P") image, which needs no colour quantisation and
+keeps GIF writing fast.
+
+`Marks` adds what a user needs to judge motion at a glance: contact marks under planted (and sliding)
+feet, a facing arrow on the ground, a ruler in metres with the grid spacing in metres, and a legend.
+`render_strobe` draws the still: each clip as a chronophotograph (several poses of the whole clip on one
+fixed view), which shows gait, pace and foot placement without animation.
+
+Axis convention, the same in every picture walkdiff draws (GIF, MP4, still and `walkdiff walk`'s
+top-down plot): Y is up, the ground is XZ, and the ground is seen from above and in front, with +X
+towards the right of the picture and +Z towards the viewer (down the picture). The GIF's camera turns
+35 degrees about Y from that view (+X right and a little away, +Z down and a little left); the
+top-down plot shows it exactly (x to the right, z downwards).
 """
 
 from __future__ import annotations
@@ -20,6 +32,8 @@ from PIL import Image, ImageDraw, ImageFont
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import write_atomic
 from walkdiff.motion.mirror import name_pairs
+from walkdiff.motion.profile import ContactSpec, SkeletonProfile
+from walkdiff.motion.representation import contact_state
 
 Color = tuple[int, int, int]
 
@@ -39,6 +53,11 @@ TEXT: Color = (40, 40, 40)
 BODY: Color = (55, 55, 55)
 LEFT: Color = (33, 102, 172)
 RIGHT: Color = (214, 96, 39)
+PLANTED: Color = (26, 152, 80)  # a foot on the ground and still
+FACING: Color = (118, 42, 131)
+PATH: Color = (0, 160, 160)  # the requested path of `walkdiff walk`
+RULER: Color = (70, 70, 70)
+FACING_LENGTH = 0.3  # body heights
 
 
 @dataclass(frozen=True)
@@ -86,6 +105,38 @@ def gif_step(fps: float, max_fps: float) -> int:
     return math.ceil(fps / max_fps - 1e-9)
 
 
+@dataclass(frozen=True)
+class Marks:
+    """What a preview draws besides bodies, grid and trail (nothing by default).
+
+    feet: joints marked with a green dot on the ground under them while planted: within the contact
+        height of the joint's own floor and slower than the contact speed (the rule of the features'
+        contact labels, `walkdiff.motion.representation.contact_state`).
+    contact: those thresholds (a `ContactSpec`; `feet` says which joints).
+    metres_per_unit: a ruler in metres on each panel, and grid lines a round number of metres apart.
+    facing: an arrow on the ground from the root along where the body faces, up x (right - left) of the
+        left/right joint pair nearest the root (the hips); needs joint names.
+    legend: a strip under the panels saying what each colour and mark means (and the clock).
+    """
+
+    feet: tuple[int, ...] = ()
+    contact: ContactSpec | None = None
+    metres_per_unit: float | None = None
+    facing: bool = False
+    legend: bool = False
+
+    @classmethod
+    def of(cls, profile: SkeletonProfile, legend: bool = True) -> Marks:
+        """Every mark, for clips on a profile's canonical skeleton: its feet, thresholds and units."""
+        spec = profile.contacts if profile.feet else None
+        skeleton = profile.canonical_skeleton
+        feet = () if spec is None else tuple(skeleton.index(name) for name in spec.joints)
+        return cls(feet, spec, profile.metres_per_unit, facing=True, legend=legend)
+
+
+NO_MARKS = Marks()
+
+
 def render_gif(
     path: str | Path,
     positions: np.ndarray | Sequence[np.ndarray],
@@ -101,6 +152,9 @@ def render_gif(
     cap: PreviewCap = DEFAULT_PREVIEW,
     video: bool = False,
     audio: tuple[np.ndarray, int] | None = None,
+    marks: Marks = NO_MARKS,
+    paths: Sequence[np.ndarray | None] | None = None,
+    columns: int | None = None,
 ) -> Path:
     """Write an animated GIF of one or more clips side by side and return its path.
 
@@ -114,8 +168,12 @@ def render_gif(
     cap: the clips' first seconds shown (`PreviewCap.describe` says how much, for a manifest).
     video: also write the same frames as an MP4 beside it (`path` with .mp4), with `audio` (mono
         samples, rate) from the clip's start as its sound, cut to the preview's length.
+    marks: contact marks, facing arrow, ruler and legend (`Marks`).
+    paths: per clip, None or a requested path (N, 2) of ground points (x, z) drawn on the ground.
+    columns: panels per row (all in one row by default); clip i is at row i // columns.
     """
     clips, parents = _check_clips(positions, parents, names, titles, colors, size)
+    _check_extras(marks, names, paths, columns, len(clips), len(parents))
     if not (math.isfinite(fps) and fps > 0):
         raise WalkdiffError(f"fps must be a positive number, got {fps}")
     if not (0 < max_fps <= MAX_GIF_FPS):
@@ -128,15 +186,20 @@ def render_gif(
     step = gif_step(fps, max_fps)
     sources = range(0, shown, step)
     scene = _Scene(
-        clips, parents, names, colors, size, trail_frames=round(TRAIL_SECONDS * fps) if trail else 0
-    )
+        clips, parents, names, colors, size, trail_frames=round(TRAIL_SECONDS * fps) if trail else 0,
+        marks=marks, fps=fps, paths=paths,
+    )  # fmt: skip
     frames = []
     for k, source in enumerate(sources):
-        image = scene.canvas(len(clips), 1)
-        for i in range(len(clips)):
-            image.paste(scene.panel(i, source, None if titles is None else titles[i]), (i * size[0], 0))
         clock = f"{k * step / fps:.2f} s"
-        ImageDraw.Draw(image).text((6, size[1] - 6), clock, fill=scene.text_ink, font=scene.font, anchor="ld")
+        image = scene.canvas(len(clips), columns, clock)
+        for i in range(len(clips)):
+            image.paste(
+                scene.panel(i, source, None if titles is None else titles[i]), scene.place(i, columns)
+            )
+        if not marks.legend:
+            draw = ImageDraw.Draw(image)
+            draw.text((6, size[1] - 6), clock, fill=scene.text_ink, font=scene.font, anchor="ld")
         frames.append(image)
 
     # Delays rounded on the cumulative clock, so the whole GIF lasts as long as the motion.
@@ -176,13 +239,102 @@ def render_png(
     if frames < 1:
         raise WalkdiffError(f"frames must be at least 1, got {frames}")
     scene = _Scene(clips, parents, names, colors, size, trail_frames=max(len(c) for c in clips))
-    image = scene.canvas(frames, len(clips))
+    image = scene.canvas(frames * len(clips), frames)
     for i, clip in enumerate(clips):
         picks = np.linspace(0, len(clip) - 1, frames).round().astype(int)
         for col, source in enumerate(picks):
             title = f"frame {source}" if titles is None else f"{titles[i]}  frame {source}"
             image.paste(scene.panel(i, int(source), title), (col * size[0], i * size[1]))
     return write_atomic(path, lambda f: image.save(f, format="PNG", optimize=False))
+
+
+def render_strobe(
+    path: str | Path,
+    positions: np.ndarray | Sequence[np.ndarray],
+    parents: Sequence[int] | np.ndarray,
+    fps: float,
+    *,
+    poses: int = 7,
+    names: Sequence[str] | None = None,
+    titles: Sequence[str] | None = None,
+    colors: Sequence[Color] | None = None,
+    size: tuple[int, int] = (480, 220),
+    marks: Marks = NO_MARKS,
+    paths: Sequence[np.ndarray | None] | None = None,
+    columns: int | None = None,
+    turn: bool = False,
+) -> Path:
+    """Write a still of each clip as a chronophotograph and return its path (PNG).
+
+    Each panel is a fixed view of the whole clip: `poses` evenly spaced poses, older ones fainter, the
+    root's path and (with `marks`) every contact mark of the clip, which together show step length,
+    pace and foot skating. `turn` turns each clip about the vertical so that it walks from left to right
+    (a clip walking at the camera would hide its own poses); leave it off to keep world directions, as
+    walk previews must for their paths. Other arguments as for `render_gif`.
+    """
+    clips, parents = _check_clips(positions, parents, names, titles, colors, size)
+    _check_extras(marks, names, paths, columns, len(clips), len(parents))
+    if poses < 1:
+        raise WalkdiffError(f"poses must be at least 1, got {poses}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise WalkdiffError(f"fps must be a positive number, got {fps}")
+    if turn:
+        if paths is not None:
+            raise WalkdiffError("render_strobe: turn=True would turn the clips away from their paths")
+        clips = [_turned_to_screen(c) for c in clips]
+    scene = _Scene(
+        clips, parents, names, colors, size, trail_frames=max(len(c) for c in clips), marks=marks,
+        fps=fps, paths=paths, follow=False, shades=poses,
+    )  # fmt: skip
+    seconds = max(len(c) for c in clips) / fps
+    image = scene.canvas(len(clips), columns, f"{poses} poses over {seconds:.1f} s")
+    for i in range(len(clips)):
+        image.paste(scene.strobe(i, poses, None if titles is None else titles[i]), scene.place(i, columns))
+    return write_atomic(path, lambda f: image.save(f, format="PNG", optimize=False))
+
+
+def _turned_to_screen(clip: np.ndarray) -> np.ndarray:
+    """The clip turned about the vertical through its first root so that it walks to the screen's right
+    (the camera's right axis is (cos YAW, 0, -sin YAW)); a clip that goes nowhere is left as it is."""
+    travel = clip[-1, 0, [0, 2]] - clip[0, 0, [0, 2]]
+    if np.hypot(*travel) < 1e-9:
+        return clip
+    angle = math.atan2(-math.sin(YAW), math.cos(YAW)) - math.atan2(travel[1], travel[0])
+    c, s = math.cos(angle), math.sin(angle)
+    # Rotation of (x, z) by `angle` in the ground plane, as a 3-D turn about Y.
+    turn = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+    pivot = np.array([clip[0, 0, 0], 0.0, clip[0, 0, 2]])
+    return (clip - pivot) @ turn.T + pivot
+
+
+def _check_extras(
+    marks: Marks,
+    names: Sequence[str] | None,
+    paths: Sequence[np.ndarray | None] | None,
+    columns: int | None,
+    num_clips: int,
+    num_joints: int,
+) -> None:
+    if marks.facing and names is None:
+        raise WalkdiffError("the facing arrow needs joint names (to find the left/right hips)")
+    if marks.facing and not name_pairs(names):
+        raise WalkdiffError("the facing arrow needs left/right joint pairs; none found in the joint names")
+    if any(not 0 <= j < num_joints for j in marks.feet):
+        raise WalkdiffError(f"marks.feet must be joint indices below {num_joints}, got {marks.feet}")
+    if marks.feet and marks.contact is None:
+        raise WalkdiffError("marks.feet needs marks.contact (the contact thresholds)")
+    if marks.metres_per_unit is not None and not (0 < marks.metres_per_unit < math.inf):
+        raise WalkdiffError(f"marks.metres_per_unit must be positive, got {marks.metres_per_unit}")
+    if paths is not None:
+        if len(paths) != num_clips:
+            raise WalkdiffError(
+                f"paths must have {num_clips} entries (None or (N, 2) points), got {len(paths)}"
+            )
+        for i, points in enumerate(paths):
+            if points is not None and (np.ndim(points) != 2 or np.shape(points)[1] != 2 or len(points) < 2):
+                raise WalkdiffError(f"paths[{i}] must be (N, 2) ground points (x, z), N >= 2")
+    if columns is not None and columns < 1:
+        raise WalkdiffError(f"columns must be at least 1, got {columns}")
 
 
 def _check_clips(
@@ -257,17 +409,46 @@ def _mix(color: Color, amount: float) -> Color:
     return r, g, b
 
 
+def facing_directions(positions: np.ndarray, parents: np.ndarray, names: Sequence[str]) -> np.ndarray:
+    """(F, 2) unit ground directions (x, z) the body faces: up x (right hip - left hip), the hips being
+    the left/right joint pair nearest the root that lies apart (CMU's hip joints sit on the root)."""
+
+    def depth(j: int) -> int:
+        return 0 if parents[j] < 0 else 1 + depth(int(parents[j]))
+
+    stature = float(np.ptp(positions[..., 1]))
+    apart = []
+    for left, right in sorted(name_pairs(names), key=lambda pair: (depth(pair[0]), pair)):
+        across = positions[:, right] - positions[:, left]
+        if np.median(np.hypot(across[:, 0], across[:, 2])) > 0.03 * stature:
+            apart = across
+            break
+    if len(apart) == 0:
+        raise WalkdiffError("the facing arrow needs a left/right joint pair that lies apart; none does")
+    facing = np.stack([apart[:, 2], -apart[:, 0]], axis=-1)  # (0, 1, 0) x across, on the ground
+    return facing / np.maximum(np.linalg.norm(facing, axis=-1, keepdims=True), 1e-12)
+
+
 @dataclass
 class _Clip:
     xy: np.ndarray  # (F, J, 2) joint pixels in the clip's panel
     depth: np.ndarray  # (F, J) towards the camera: far bones are drawn first
-    root: np.ndarray  # (F, 2) the root's world x, z, which the camera follows
-    inks: list[int]  # palette index of the bone ending at each joint
+    root: np.ndarray  # (F, 2) the root's world x, z
+    anchor: np.ndarray  # (F, 2) the world x, z the camera looks at: the root, or one fixed point
+    floor: float  # world height of the clip's ground
+    inks: list[list[int]]  # per shade (faint to full), palette index of the bone ending at each joint
     trail_inks: list[int]  # from faint (oldest) to full
+    feet: np.ndarray | None  # (F, n, 3) world positions of the marked joints
+    contact: np.ndarray | None  # (F, n) planted
+    facing: np.ndarray | None  # (F, 2) ground direction the body faces
+    path: np.ndarray | None  # (N, 2) requested path (x, z)
 
 
 class _Scene:
-    """Camera framing, palette and drawing shared by every clip, so that all clips have one scale."""
+    """Camera framing, palette and drawing shared by every clip, so that all clips have one scale.
+
+    follow: the camera follows each clip's root (animations); else it frames the whole clip (stills).
+    """
 
     def __init__(
         self,
@@ -277,28 +458,58 @@ class _Scene:
         colors: Sequence[Color] | None,
         size: tuple[int, int],
         trail_frames: int,
+        marks: Marks = NO_MARKS,
+        fps: float = 30.0,
+        paths: Sequence[np.ndarray | None] | None = None,
+        follow: bool = True,
+        shades: int = 1,
     ):
         self.parents = parents
         self.size = size
         self.trail_frames = trail_frames
+        self.marks = marks
+        self.has_names = names is not None
+        self.has_paths = paths is not None and any(p is not None for p in paths)
         width, height = size
-        self.font = ImageFont.load_default(size=max(9, round(height / 22)))
+        self.font = ImageFont.load_default(size=max(9, min(15, round(height / 18))))
+        self.legend_font = ImageFont.load_default(size=13)
         self.line_width = max(2, round(height / 110))
         heads = [j for j, n in enumerate(names or []) if n.lower() == "head"]
         self.head = heads[0] if heads else None
+        paths = list(paths) if paths is not None else [None] * len(clips)
 
-        # Each clip is seen from above its own root (horizontally) and its own lowest point (vertically).
-        relative = []
-        for clip in clips:
-            anchor = np.stack([clip[:, 0, 0], np.full(len(clip), clip[..., 1].min()), clip[:, 0, 2]], axis=-1)
-            relative.append(clip - anchor[:, None, :])
+        # Each clip is seen from above its own root (or the middle of its path) horizontally and its own
+        # lowest point vertically.
+        relative, anchors, floors = [], [], []
+        for clip, path in zip(clips, paths, strict=True):
+            floor = float(clip[..., 1].min())
+            if follow:
+                anchor = clip[:, 0, [0, 2]]
+            else:
+                ground = clip[:, 0, [0, 2]] if path is None else np.concatenate([clip[:, 0, [0, 2]], path])
+                anchor = np.repeat(((ground.min(0) + ground.max(0)) / 2)[None], len(clip), axis=0)
+            anchors.append(anchor)
+            floors.append(floor)
+            relative.append(
+                clip - np.stack([anchor[:, 0], np.full(len(clip), floor), anchor[:, 1]], -1)[:, None]
+            )
         screen = [_project(r) for r in relative]
         stature = max(max(float(r[..., 1].max()) for r in relative), 1e-9)
+        self.stature = stature
         self.head_radius = 0.055 * stature  # world units until the scale is known
         reach = max(float(np.abs(right).max()) for right, _, _ in screen)
         highest = max(float(up.max()) for _, up, _ in screen) + (1.8 * self.head_radius if heads else 0.0)
         lowest = min(0.0, *(float(up.min()) for _, up, _ in screen))
-        # Room for the title above and for some ground (grid, trail) below the feet.
+        if not follow:  # the whole requested path in view too
+            for path, anchor in zip(paths, anchors, strict=True):
+                if path is not None:
+                    flat = np.stack(
+                        [path[:, 0] - anchor[0, 0], 0 * path[:, 0], path[:, 1] - anchor[0, 1]], -1
+                    )
+                    right, up, _ = _project(flat)
+                    reach = max(reach, float(np.abs(right).max()))
+                    highest, lowest = max(highest, float(up.max())), min(lowest, float(up.min()))
+        # Room for the title above and for some ground (grid, trail, ruler) below the feet.
         top, bottom, side = 1.6 * self.font.size, 0.14 * height, 0.05 * width
         self.scale = min((width / 2 - side) / max(reach, 1e-9), (height - top - bottom) / (highest - lowest))
         self.origin = np.array([width / 2, top + highest * self.scale])  # pixel of the ground below the root
@@ -307,22 +518,42 @@ class _Scene:
         self.palette: dict[Color, int] = {BACKGROUND: 0}  # index 0: new images start as background
         self.grid_ink = self.ink(GRID)
         self.text_ink = self.ink(TEXT)
-        sides = [None] * len(parents) if names is None else _sides(names)
+        self.planted_ink = self.ink(PLANTED)
+        self.facing_ink = self.ink(FACING)
+        self.path_ink = self.ink(PATH)
+        self.ruler_ink = self.ink(RULER)
+        self.sides = [None] * len(parents) if names is None else _sides(names)
         self.clips = []
         for i, (clip, rel, (_, _, depth)) in enumerate(zip(clips, relative, screen, strict=True)):
             body = BODY if colors is None else tuple(int(c) for c in colors[i])
+            feet = contact = None
+            if marks.feet:
+                feet = clip[:, list(marks.feet)]
+                low, slow = contact_state(feet, fps, marks.contact)
+                contact = low & slow
             self.clips.append(
                 _Clip(
                     xy=self._to_pixels(rel),
                     depth=depth,
                     root=clip[:, 0, [0, 2]],
-                    inks=[self.ink(s or body) for s in sides],
+                    anchor=anchors[i],
+                    floor=floors[i],
+                    inks=[
+                        [self.ink(_mix(s or body, 0.25 + 0.75 * (k + 1) / shades)) for s in self.sides]
+                        for k in range(shades)
+                    ],
                     trail_inks=[
                         self.ink(_mix(body, (k + 1) / (TRAIL_SHADES + 1))) for k in range(TRAIL_SHADES)
                     ],
+                    feet=feet,
+                    contact=contact,
+                    facing=facing_directions(clip, parents, names) if marks.facing else None,
+                    path=None if paths[i] is None else np.asarray(paths[i], dtype=np.float64),
                 )
             )
-        self.grid_step = _nice_step(stature / 2)
+        unit = marks.metres_per_unit
+        # Grid lines a round number of metres apart when the units are known.
+        self.grid_step = _nice_step(stature / 2) if unit is None else _nice_step(stature * unit / 4) / unit
         self.grid = self._grid_image()
 
     def ink(self, color: Color) -> int:
@@ -333,9 +564,75 @@ class _Scene:
             self.palette[color] = len(self.palette)
         return self.palette[color]
 
-    def canvas(self, columns: int, rows: int) -> Image.Image:
-        """A background image of `columns` x `rows` panels."""
-        return self._blank((columns * self.size[0], rows * self.size[1]))
+    # ------------------------------------------------------------ layout
+
+    def place(self, index: int, columns: int | None) -> tuple[int, int]:
+        """Top-left pixel of panel `index` in a grid of `columns` (one row when None)."""
+        columns = columns or len(self.clips)
+        return (index % columns) * self.size[0], (index // columns) * self.size[1]
+
+    def canvas(self, panels: int, columns: int | None, clock: str | None = None) -> Image.Image:
+        """A background image for `panels` panels in rows of `columns`, with the legend below them."""
+        columns = min(columns or panels, panels)
+        rows = math.ceil(panels / columns)
+        width, height = columns * self.size[0], rows * self.size[1]
+        if not self.marks.legend:
+            return self._blank((width, height))
+        lines = self._legend_lines(width, clock)
+        step = self.legend_font.size + 8
+        image = self._blank((width, height + step * len(lines) + 6))
+        draw = ImageDraw.Draw(image)
+        for k, items in enumerate(lines):
+            self._legend_line(draw, items, height + 6 + k * step, step)
+        return image
+
+    def _legend_items(self) -> list[tuple[str, str, int]]:
+        """(glyph, text, ink) of each mark drawn: glyphs 'line', 'dot', 'arrow', 'ruler'."""
+        items = []
+        if self.has_names:
+            items += [("line", "left limbs", self.ink(LEFT)), ("line", "right limbs", self.ink(RIGHT))]
+        if self.marks.feet:
+            items.append(("dot", "foot planted", self.planted_ink))
+        if self.marks.facing:
+            items.append(("arrow", "facing", self.facing_ink))
+        if self.has_paths:
+            items.append(("line", "requested path", self.path_ink))
+        if self.trail_frames:
+            items.append(("line", "root path", self.clips[0].trail_inks[-1]))
+        if self.marks.metres_per_unit is not None:
+            metres = self.grid_step * self.marks.metres_per_unit
+            items.append(("ruler", f"ruler 1 m, ticks and grid {metres:g} m", self.ruler_ink))
+        return items
+
+    def _legend_lines(self, width: int, clock: str | None) -> list[list[tuple[str, str, int]]]:
+        lines, used = [[]], 0
+        for item in ([("text", clock, self.text_ink)] if clock else []) + self._legend_items():
+            need = (0 if item[0] == "text" else 34) + self.legend_font.getlength(item[1]) + 16
+            if used + need > width - 8 and lines[-1]:
+                lines.append([])
+                used = 0
+            lines[-1].append(item)
+            used += need
+        return lines
+
+    def _legend_line(self, draw: ImageDraw.ImageDraw, items, y: float, step: float) -> None:
+        x, middle = 8.0, y + step / 2
+        for glyph, text, ink in items:
+            if glyph == "dot":
+                draw.ellipse([(x + 8, middle - 5), (x + 18, middle + 5)], fill=ink)
+            elif glyph == "text":
+                pass
+            elif glyph == "ruler":
+                draw.line([(x, middle + 3), (x + 26, middle + 3)], fill=ink, width=2)
+                for tick in (x, x + 13, x + 26):
+                    draw.line([(tick, middle - 2), (tick, middle + 3)], fill=ink, width=1)
+            else:
+                draw.line([(x, middle), (x + 26, middle)], fill=ink, width=3)
+                if glyph == "arrow":
+                    draw.polygon([(x + 28, middle), (x + 20, middle - 5), (x + 20, middle + 5)], fill=ink)
+            indent = 0 if glyph == "text" else 34
+            draw.text((x + indent, middle), text, fill=self.text_ink, font=self.legend_font, anchor="lm")
+            x += indent + self.legend_font.getlength(text) + 16
 
     def _blank(self, size: tuple[int, int]) -> Image.Image:
         image = Image.new("P", size, 0)
@@ -362,51 +659,138 @@ class _Scene:
                 draw.line([tuple(pixels[0]), tuple(pixels[1])], fill=self.grid_ink, width=1)
         return image
 
-    def panel(self, index: int, frame: int, title: str | None) -> Image.Image:
-        """Clip `index` at `frame` (its last frame if shorter) on its own panel, so nothing spills over."""
-        clip = self.clips[index]
-        frame = min(frame, len(clip.xy) - 1)
-        cell = np.mod(clip.root[frame], self.grid_step)
+    # ------------------------------------------------------------ drawing
+
+    def _ground(self, clip: _Clip, frame: int) -> tuple[Image.Image, ImageDraw.ImageDraw]:
+        """The panel's grid seen from the clip's anchor at `frame`, with the requested path and ruler."""
+        cell = np.mod(clip.anchor[frame], self.grid_step)
         shift = (
             np.round(self._to_pixels(np.array([cell[0], 0.0, cell[1]])) - self.origin).astype(int)
             + self.margin
         )
         image = self.grid.crop((shift[0], shift[1], shift[0] + self.size[0], shift[1] + self.size[1]))
         draw = ImageDraw.Draw(image)
-        if self.trail_frames and frame:
-            self._draw_trail(draw, clip, frame)
+        if clip.path is not None:
+            points = self._ground_pixels(clip.path - clip.anchor[frame])
+            draw.line(
+                [tuple(p) for p in points], fill=self.path_ink, width=self.line_width + 1, joint="curve"
+            )
+            for end, radius in ((points[0], 1.6), (points[-1], 2.4)):  # start small, end large
+                r = radius * self.line_width
+                draw.ellipse([tuple(end - r), tuple(end + r)], outline=self.path_ink, width=2)
+        if self.marks.metres_per_unit is not None:
+            self._draw_ruler(draw)
+        return image, draw
+
+    def _draw_ruler(self, draw: ImageDraw.ImageDraw) -> None:
+        """1 m along the screen's horizontal in the bottom-left corner, ticked at the grid spacing.
+
+        The camera is orthographic and its horizontal axis lies on the ground, so horizontal lengths on
+        screen are true lengths on the ground, at the panel's scale.
+        """
+        per_metre = self.scale / self.marks.metres_per_unit
+        tick = self.grid_step * self.scale
+        length = per_metre  # 1 m
+        x0, y = 8.0, self.size[1] - 8.0
+        draw.line([(x0, y), (x0 + length, y)], fill=self.ruler_ink, width=2)
+        for k in range(round(length / tick) + 1):
+            x = x0 + k * tick
+            draw.line([(x, y - (6 if k in (0, round(length / tick)) else 3)), (x, y)], fill=self.ruler_ink)
+        draw.text((x0 + length + 4, y), "1 m", fill=self.ruler_ink, font=self.font, anchor="ls")
+
+    def _draw_contacts(self, draw: ImageDraw.ImageDraw, clip: _Clip, frame: int, anchor: np.ndarray) -> None:
+        """A flat dot on the ground under each marked joint planted at `frame`."""
+        radius = max(3.0, 0.025 * self.stature * self.scale)
+        for planted, foot in zip(clip.contact[frame], clip.feet[frame], strict=True):
+            if planted:
+                x, y = self._ground_pixels(foot[None, [0, 2]] - anchor)[0]
+                box = [(x - radius, y - radius * 0.6), (x + radius, y + radius * 0.6)]
+                draw.ellipse(box, fill=self.planted_ink)
+
+    def _draw_facing(self, draw: ImageDraw.ImageDraw, clip: _Clip, frame: int, anchor: np.ndarray) -> None:
+        """An arrow on the ground from the root along where the body faces at `frame`."""
+        root = clip.root[frame]
+        tip = root + clip.facing[frame] * FACING_LENGTH * self.stature
+        start, end = self._ground_pixels(np.stack([root, tip]) - anchor)
+        draw.line([tuple(start), tuple(end)], fill=self.facing_ink, width=self.line_width + 1)
+        direction = (end - start) / max(float(np.hypot(*(end - start))), 1e-9)
+        normal = np.array([-direction[1], direction[0]]) * 0.6
+        head = 3.0 * self.line_width + 3
+        tips = [
+            end + direction * head * 0.6,
+            end - (direction - normal) * head,
+            end - (direction + normal) * head,
+        ]
+        draw.polygon([tuple(p) for p in tips], fill=self.facing_ink)
+
+    def _draw_body(self, draw: ImageDraw.ImageDraw, clip: _Clip, frame: int, inks: list[int]) -> None:
         joints = clip.xy[frame]
         depth = clip.depth[frame]
         for j in sorted(range(1, len(self.parents)), key=lambda j: depth[j] + depth[self.parents[j]]):
-            draw.line(
-                [tuple(joints[self.parents[j]]), tuple(joints[j])], fill=clip.inks[j], width=self.line_width
-            )
+            draw.line([tuple(joints[self.parents[j]]), tuple(joints[j])], fill=inks[j], width=self.line_width)
         if self.head is not None:
             # The head joint sits at the base of the skull: put the circle a little further along the neck.
             up = joints[self.head] - joints[max(self.parents[self.head], 0)]
             centre = joints[self.head] + up / max(float(np.hypot(*up)), 1e-9) * self.head_radius * 0.8
             box = [tuple(centre - self.head_radius), tuple(centre + self.head_radius)]
-            draw.ellipse(box, fill=0, outline=clip.inks[self.head], width=self.line_width)
+            draw.ellipse(box, fill=0, outline=inks[self.head], width=self.line_width)
+
+    def _finish(self, draw: ImageDraw.ImageDraw, title: str | None) -> None:
         if title:
             draw.text((self.size[0] / 2, 3), title, fill=self.text_ink, font=self.font, anchor="ma")
         draw.rectangle([(0, 0), (self.size[0] - 1, self.size[1] - 1)], outline=self.grid_ink)
+
+    def panel(self, index: int, frame: int, title: str | None) -> Image.Image:
+        """Clip `index` at `frame` (its last frame if shorter) on its own panel, so nothing spills over."""
+        clip = self.clips[index]
+        frame = min(frame, len(clip.xy) - 1)
+        image, draw = self._ground(clip, frame)
+        if self.trail_frames and frame:
+            self._draw_trail(draw, clip, frame, max(0, frame - self.trail_frames))
+        if clip.contact is not None:
+            self._draw_contacts(draw, clip, frame, clip.anchor[frame])
+        if clip.facing is not None:
+            self._draw_facing(draw, clip, frame, clip.anchor[frame])
+        self._draw_body(draw, clip, frame, clip.inks[-1])
+        self._finish(draw, title)
         return image
 
-    def _draw_trail(self, draw: ImageDraw.ImageDraw, clip: _Clip, frame: int) -> None:
-        """The root's path over the last `trail_frames` frames, on the ground, fading with age."""
-        start = max(0, frame - self.trail_frames)
-        stride = max(1, (frame - start) // 30)  # about 30 segments whatever the frame rate
+    def strobe(self, index: int, poses: int, title: str | None) -> Image.Image:
+        """Clip `index` as `poses` poses from its first frame to its last on one fixed view, older ones
+        fainter, over its whole root path and every contact mark of the clip."""
+        clip = self.clips[index]
+        last = len(clip.xy) - 1
+        image, draw = self._ground(clip, 0)
+        if last:
+            self._draw_trail(draw, clip, last, 0)
+        if clip.contact is not None:  # footprints: every contact of the clip
+            for frame in range(last + 1):
+                self._draw_contacts(draw, clip, frame, clip.anchor[0])
+        picks = np.linspace(0, last, poses).round().astype(int)
+        if clip.facing is not None:  # where the body faces at the end (the strongest pose)
+            self._draw_facing(draw, clip, last, clip.anchor[0])
+        for k, frame in enumerate(picks):
+            self._draw_body(draw, clip, int(frame), clip.inks[k * len(clip.inks) // poses])
+        self._finish(draw, title)
+        return image
+
+    def _draw_trail(self, draw: ImageDraw.ImageDraw, clip: _Clip, frame: int, start: int) -> None:
+        """The root's path from `start` to `frame`, on the ground, fading with age."""
+        stride = max(1, (frame - start) // 60)  # about 60 segments whatever the frame rate
         picks = np.unique(np.r_[np.arange(start, frame, stride), frame])
-        path = clip.root[picks] - clip.root[frame]
-        points = self._to_pixels(np.stack([path[:, 0], np.zeros(len(path)), path[:, 1]], axis=-1))
-        age = (frame - picks) / self.trail_frames  # 0 now, 1 at the far end of the trail
+        points = self._ground_pixels(clip.root[picks] - clip.anchor[frame])
+        age = (frame - picks) / max(frame - start, 1)  # 0 now, 1 at the far end of the trail
         for k in range(len(points) - 1):
             shade = min(TRAIL_SHADES - 1, int((1 - age[k + 1]) * TRAIL_SHADES))
             draw.line(
                 [tuple(points[k]), tuple(points[k + 1])], fill=clip.trail_inks[shade], width=self.line_width
             )
 
+    def _ground_pixels(self, xz: np.ndarray) -> np.ndarray:
+        """Ground points (N, 2) relative to the anchor -> panel pixels (N, 2)."""
+        return self._to_pixels(np.stack([xz[:, 0], np.zeros(len(xz)), xz[:, 1]], axis=-1))
+
     def _to_pixels(self, points: np.ndarray) -> np.ndarray:
-        """Root-relative world points (..., 3), Y above the clip's lowest point, to panel pixels (..., 2)."""
+        """Anchor-relative world points (..., 3), Y above the clip's lowest point -> panel pixels (..., 2)."""
         right, up, _ = _project(points)
         return np.stack([self.origin[0] + right * self.scale, self.origin[1] - up * self.scale], axis=-1)

@@ -23,7 +23,7 @@ from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import decode
 from walkdiff.motion.skeleton import Motion
 from walkdiff.progress import progress, step_hook
-from walkdiff.render import PREVIEW_SECONDS, PreviewCap, render_gif
+from walkdiff.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 
 def load_walker(path: str | Path, device: str | torch.device = "cpu"):
@@ -75,28 +75,56 @@ def path_error(path: Polyline, root_xz: np.ndarray) -> dict[str, float]:
     }
 
 
+START_COLOR, END_COLOR = "#1a9850", "#d7191c"
+
+
 def plot_paths(out: str | Path, panels: list[tuple[str, Polyline, list[tuple[str, np.ndarray]]]]) -> Path:
-    """Top-down plot per path: the path and each walk's root trajectory."""
+    """Top-down plot per path, in metres: the requested path (start and end marked, arrows along it) and
+    each walk's root trajectory.
+
+    Drawn in walkdiff's one axis convention (`walkdiff.render`): seen from above, x to the right and z
+    towards the viewer, that is down the page, as the GIF's camera sees the ground.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 4), squeeze=False)
+    width = max(8.0, 4.5 * len(panels))  # >= 880 px at 110 dpi
+    fig, axes = plt.subplots(1, len(panels), figsize=(width, 6.0), squeeze=False)
     for ax, (title, path, walks) in zip(axes[0], panels, strict=True):
-        ax.plot(path.points[:, 0], path.points[:, 1], color="black", lw=3, alpha=0.3, label="path")
+        points = path.points
+        ax.plot(points[:, 0], points[:, 1], color="black", lw=4, alpha=0.25, label="requested path")
+        for s in np.linspace(0, path.length, 7)[1:-1]:  # direction arrows along the path
+            at, ahead = path.at(np.array(s)), path.at(np.array(s + 1e-3 * path.length))
+            arrow = {"arrowstyle": "-|>", "color": "0.35", "lw": 0, "mutation_scale": 18}
+            ax.annotate("", xy=tuple(ahead), xytext=tuple(at), arrowprops=arrow)
         for label, xz in walks:
-            ax.plot(xz[:, 0], xz[:, 1], lw=1, label=label)
+            ax.plot(xz[:, 0], xz[:, 1], lw=1.5, label=f"{label} (root)")
+        ax.plot(*points[0], "o", color=START_COLOR, ms=10, label="start")
+        ax.plot(*points[-1], "s", color=END_COLOR, ms=10, label="end")
         ax.set_aspect("equal", adjustable="datalim")  # a straight path keeps a readable panel width
+        ax.invert_yaxis()  # z towards the viewer: down the page, as in the GIF
+        ax.grid(True, color="0.9")
         ax.set_title(title)
-        ax.set_xlabel("x")
-        ax.set_ylabel("z")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("z (m), towards the viewer")
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="center right")
-    fig.tight_layout(rect=(0, 0, 0.9, 1))
+    fig.legend(handles, labels, fontsize=9, loc="lower center", ncol=min(len(labels), 6))
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
     written = write_atomic(out, lambda f: fig.savefig(f, format="png", dpi=110))
     plt.close(fig)
     return written
+
+
+def render_walk(gif: Path, model, motion: Motion, path: Polyline, cap: PreviewCap, title: str | None = None):
+    """The walk's GIF and MP4, with the requested path (in the model's units) drawn on the ground."""
+    skeleton = model.skeleton
+    positions = motion_world_positions(motion.slice(0, cap.frames(motion.num_frames, motion.fps)))
+    return render_gif(
+        gif, [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap, video=True,
+        marks=Marks.of(model.profile), paths=[path.points], titles=None if title is None else [title],
+    )  # fmt: skip
 
 
 def walk(
@@ -139,12 +167,7 @@ def walk(
     write_bvh(bvh, model.to_file(motion))
     files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, metres, [(style, root_xz * unit)])])]
     if cap is not None:
-        skeleton = model.skeleton
-        positions = motion_world_positions(motion.slice(0, cap.frames(motion.num_frames, motion.fps)))
-        gif = render_gif(
-            out / f"{stem}.gif", [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap,
-            video=True,
-        )  # fmt: skip
+        gif = render_walk(out / f"{stem}.gif", model, motion, polyline, cap)
         files += [gif, gif.with_suffix(".mp4")]
     manifest = {
         "checkpoint": str(ckpt),
@@ -200,6 +223,7 @@ def bench_walk(out: str, ckpt: str, evaluator: str, seed: int = 0) -> dict:
     scorer = load_evaluator(evaluator)
     styles = list(range(len(model.spec["styles"])))
     scale = float(model.style_speed.mean())
+    unit = model.profile.metres_per_unit  # the plot is in metres
     rows, panels = {}, []
     for name, polyline in benchmark_paths(scale).items():
         started = time.perf_counter()
@@ -212,7 +236,7 @@ def bench_walk(out: str, ckpt: str, evaluator: str, seed: int = 0) -> dict:
             scored.append(features[:frames])
             root_xz = to_motion(model, features[:frames], start).root_positions[:, [0, 2]]
             errors.append(path_error(polyline, root_xz))
-            walks.append((model.spec["styles"][style], root_xz))
+            walks.append((model.spec["styles"][style], root_xz * unit))
         rows[name] = {
             "length": polyline.length,
             "frames": raw.shape[1],
@@ -223,7 +247,7 @@ def bench_walk(out: str, ckpt: str, evaluator: str, seed: int = 0) -> dict:
             "style_accuracy": style_accuracy(scorer, scored, styles, scorer.spec["window"]),
             "seconds_per_frame_8_streams": elapsed / raw.shape[1],
         }
-        panels.append((name, polyline, walks))
+        panels.append((name, Polyline.of(polyline.points * unit), walks))
     plot = plot_paths(Path(out).with_suffix(".png"), panels)
     result = {
         "checkpoint": ckpt,

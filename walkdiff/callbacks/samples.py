@@ -1,11 +1,21 @@
-"""Every N epochs: one clip per style from fixed seeds, as BVH, a GIF and a filmstrip, into the MLflow run."""
+"""Every N epochs, previews of what the model makes into the MLflow run: a style grid (`SampleClips`) for
+the styled generator, a walk along a fixed path (`WalkSamples`) for the path walker.
+
+The style grid has one row per style: a real clip of that style and content from the training data
+(the same clip every epoch) beside a generated one (from the same seed every epoch), so the epochs
+compare. It is logged as a still (`render_strobe`, the run's image `samples/styles` at the epoch's
+step, so MLflow's image view steps through the epochs) and as a GIF and MP4 beside the BVH files.
+"""
 
 from __future__ import annotations
 
+import logging
 import tempfile
+import time
 from pathlib import Path
 
 import lightning as L
+import numpy as np
 import torch
 from PIL import Image
 
@@ -13,18 +23,61 @@ from walkdiff.generation import Sampling, generate_long
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import decode
-from walkdiff.render import render_gif, render_png
+from walkdiff.render import Marks, PreviewCap, render_gif, render_strobe
 from walkdiff.tracking import log_file
+
+log = logging.getLogger(__name__)
+
+GRID_COLUMNS = 2  # real | generated: two 480 px stills (400 px GIF panels) fit the UI's ~1000 px
+STILL_PANEL = (480, 220)
+GIF_PANEL = (400, 250)
+GIF_FPS = 15  # 16 panels of 4 s stay under the preview pixel budget
+GRID_CAP = PreviewCap(seconds=10.0)
+
+
+def log_image(logger, path: Path, key: str, step: int) -> None:
+    """An image into the run's image view at `step` (no-op without an MLflow run)."""
+    if getattr(logger, "run_id", None) is not None:
+        with Image.open(path) as image:
+            logger.experiment.log_image(logger.run_id, image.copy(), key=key, step=step)
+
+
+def looped(positions: np.ndarray, frames: int) -> np.ndarray:
+    """A clip (F, J, 3) repeated to `frames` frames, each repeat moved on by the clip's own horizontal
+    travel so the root path continues instead of jumping back."""
+    repeats = -(-frames // len(positions))
+    travel = positions[-1, 0] - positions[0, 0]
+    travel[1] = 0.0
+    return np.concatenate([positions + k * travel for k in range(repeats)])[:frames]
+
+
+def real_references(datamodule, styles: list[str], content: str) -> dict[str, tuple[str, np.ndarray]]:
+    """Per style, (clip name, raw features) of the longest clip of that style and content in the training
+    split (else the validation split): a fixed reference, the same at every epoch."""
+    if not hasattr(datamodule, "split_features"):
+        return {}
+    contents = list(datamodule.spec.contents)
+    if content not in contents:
+        return {}
+    found: dict[str, tuple[str, np.ndarray]] = {}
+    for split in ("train", "val"):
+        for clip, name, features in sorted(datamodule.split_features(split), key=lambda c: c[1]):
+            style = styles[clip.style]
+            if clip.content != contents.index(content) or (style in found and split != "train"):
+                continue
+            if style not in found or len(features) > len(found[style][1]):
+                found[style] = (name, features)
+    return found
 
 
 class SampleClips(L.Callback):
-    """Logs `samples/epoch_NNNN/<style>.bvh`, `samples/epoch_NNNN/styles.gif` and a filmstrip image (a row
-    of poses per style) as the run's image `samples/styles` at the epoch's step, so MLflow's image view
-    steps through the epochs.
+    """Logs `samples/epoch_NNNN/<style>_<content>.bvh`, `styles.gif`, `styles.mp4` and the still
+    `styles.png`, which is also the run's image `samples/styles` at the epoch's step.
 
-    The same seed every time, so the previews of successive epochs show how each style evolves. Clips
-    are `seconds` long (default 4 s: several gait cycles), made window by window as `walkdiff sample`
-    makes them; `frames` (one window when neither is given) overrides it.
+    Clips are `seconds` long (default 4 s: several gait cycles), made window by window as `walkdiff
+    sample` makes them; `frames` (one window when neither is given) overrides it. With `real` (and a
+    data module that has clips of the content) each style's row starts with its real reference clip,
+    looped to the generated length where it is shorter (Xia's walks last 1-3 s).
     """
 
     def __init__(
@@ -36,6 +89,7 @@ class SampleClips(L.Callback):
         seed: int = 0,
         sampler: str = "ddpm",
         steps: int | None = None,
+        real: bool = True,
     ):
         self.every_n_epochs = every_n_epochs
         self.content = content
@@ -44,11 +98,17 @@ class SampleClips(L.Callback):
         self.seed = seed
         self.sampler = sampler
         self.steps = steps
+        self.real = real
+        self.references: dict[str, tuple[str, np.ndarray]] | None = None
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         epoch = trainer.current_epoch + 1
         if trainer.sanity_checking or epoch % self.every_n_epochs or not trainer.is_global_zero:
             return
+        if self.references is None:
+            styles = list(pl_module.spec["styles"])
+            datamodule = getattr(trainer, "datamodule", None)
+            self.references = real_references(datamodule, styles, self.content) if self.real else {}
         self.write(pl_module, trainer.logger, f"samples/epoch_{epoch:04d}", step=trainer.global_step)
 
     @torch.no_grad()
@@ -61,30 +121,56 @@ class SampleClips(L.Callback):
         generator = torch.Generator(device=pl_module.device).manual_seed(self.seed)
         fps = pl_module.spec["fps"]
         frames = self.frames or (round(self.seconds * fps) if self.seconds else pl_module.spec["window"])
-        sampling = Sampling(self.sampler, self.steps)
-        x = generate_long(pl_module, style_ids, content_ids, frames, sampling, generator)
+        x = generate_long(
+            pl_module, style_ids, content_ids, frames, Sampling(self.sampler, self.steps), generator
+        )
         raw = pl_module.to_raw(x)
         skeleton = pl_module.skeleton
+        started = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(folder or tmp)
             out.mkdir(parents=True, exist_ok=True)
-            files, positions = [], []
+            files, generated = [], []
             for style, features in zip(styles, raw):
-                motion = decode(features, skeleton, 1.0 / pl_module.spec["fps"])
+                motion = decode(features, skeleton, 1.0 / fps)
                 path = out / f"{style}_{self.content}.bvh"
                 write_bvh(path, pl_module.to_file(motion))
                 files.append(path)
-                positions.append(motion_world_positions(motion))
-            gif = out / "styles.gif"
-            render_gif(gif, positions, skeleton.parents, fps, titles=styles, names=skeleton.names)
-            strip = render_png(
-                out / "styles.png", positions, skeleton.parents, frames=6, names=skeleton.names,
-                titles=styles, size=(300, 300),
+                generated.append(motion_world_positions(motion))
+            positions, titles = self._grid(styles, generated, skeleton, fps)
+            columns = GRID_COLUMNS if len(positions) > len(styles) else min(GRID_COLUMNS, len(styles))
+            marks = Marks.of(pl_module.profile)
+            common = {"names": skeleton.names, "titles": titles, "marks": marks, "columns": columns}
+            gif = render_gif(
+                out / "styles.gif", positions, skeleton.parents, fps, size=GIF_PANEL, max_fps=GIF_FPS,
+                cap=GRID_CAP, video=True, **common,
             )  # fmt: skip
-            files += [gif, strip]
+            still = render_strobe(
+                out / "styles.png", positions, skeleton.parents, fps, size=STILL_PANEL, turn=True, **common
+            )
+            files += [gif, gif.with_suffix(".mp4"), still]
+            log.info(f"style grid preview: {time.perf_counter() - started:.2f} s to decode and draw")
             for path in files:
                 log_file(logger, path, artifact_dir)
-            if getattr(logger, "run_id", None) is not None:
-                with Image.open(strip) as image:
-                    logger.experiment.log_image(logger.run_id, image.copy(), key="samples/styles", step=step)
+            log_image(logger, still, "samples/styles", step)
             return files if folder else []
+
+    def _grid(self, styles, generated, skeleton, fps) -> tuple[list[np.ndarray], list[str]]:
+        """Panels in rows of styles: real | generated where every style has its reference, else the
+        generated clips alone (and a warning naming the styles without one)."""
+        references = self.references or {}
+        missing = [s for s in styles if s not in references]
+        if not references or missing:
+            if references:
+                log.warning(
+                    f"no real {self.content} clip of {', '.join(missing)}: the grid shows generated only"
+                )
+            return generated, [f"{s} · generated" for s in styles]
+        positions, titles = [], []
+        for style, clip in zip(styles, generated, strict=True):
+            name, features = references[style]
+            real = motion_world_positions(decode(features, skeleton, 1.0 / fps))
+            note = f"{len(real) / fps:.1f} s" + (", looped" if len(real) < len(clip) else "")
+            positions += [looped(real, len(clip)), clip]
+            titles += [f"{style} · real {name} ({note})", f"{style} · generated"]
+        return positions, titles

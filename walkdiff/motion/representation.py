@@ -92,13 +92,20 @@ def _per_step(values: torch.Tensor) -> torch.Tensor:
     return torch.cat([values, values[-1:]])
 
 
+def contact_state(feet: np.ndarray, fps: float, spec: ContactSpec) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (F, n, 3) of contact joints -> (low, slow) booleans (F, n): within the contact
+    height of the joint's own floor, and slower than the contact speed. In contact: both."""
+    feet = torch.as_tensor(feet, dtype=torch.float64)
+    speed = _per_step(torch.linalg.norm(feet[1:] - feet[:-1], dim=-1)) * fps
+    height = feet[..., 1] - torch.quantile(feet[..., 1], spec.floor_percentile / 100, dim=0)
+    return (height < spec.height_threshold).numpy(), (speed < spec.speed_threshold).numpy()
+
+
 def foot_contacts(motion: Motion, spec: ContactSpec) -> np.ndarray:
     """(F, 4) float {0, 1}: left heel, left toe, right heel, right toe (see `ContactSpec`)."""
     joints = [motion.skeleton.index(name) for name in spec.joints]
-    feet = torch.from_numpy(motion_world_positions(motion)[:, joints])
-    speed = _per_step(torch.linalg.norm(feet[1:] - feet[:-1], dim=-1)) * motion.fps
-    height = feet[..., 1] - torch.quantile(feet[..., 1], spec.floor_percentile / 100, dim=0)
-    return ((speed < spec.speed_threshold) & (height < spec.height_threshold)).double().numpy()
+    low, slow = contact_state(motion_world_positions(motion)[:, joints], motion.fps, spec)
+    return (low & slow).astype(np.float64)
 
 
 def encode(motion: Motion, profile: SkeletonProfile) -> np.ndarray:
