@@ -33,7 +33,7 @@ from walkdiff.motion.representation import FeatureLayout, decode, encode, featur
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
 from walkdiff.progress import progress, step_hook
-from walkdiff.render import PREVIEW_SECONDS, PreviewCap, render_gif
+from walkdiff.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]
@@ -361,6 +361,7 @@ def _write_clip(
             titles=[t for _, t in clips],
             cap=cap,
             video=True,
+            marks=Marks.of(model.profile),
         )
 
 

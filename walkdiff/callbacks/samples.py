@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from walkdiff.errors import WalkdiffError
 from walkdiff.generation import Sampling, generate_long
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -174,3 +175,76 @@ class SampleClips(L.Callback):
             positions += [looped(real, len(clip)), clip]
             titles += [f"{style} · real {name} ({note})", f"{style} · generated"]
         return positions, titles
+
+
+# An S bend 4 m long in metres (about 3.5 s at a walking pace): turns both ways and a straight start.
+TEST_PATH = ((0.0, 0.0), (0.8, 0.0), (1.6, 0.4), (2.4, 0.0), (3.2, -0.4), (4.0, 0.0))
+
+
+class WalkSamples(L.Callback):
+    """Every N epochs the path walker walks a fixed path (`points`, [x, z] in metres; `style` at its
+    training pace, the first style by default), and logs `samples/epoch_NNNN/<style>_walk.bvh`, its GIF
+    and MP4 with the path drawn on the ground, the still `walk.png` (the run's image `samples/walk` at
+    the epoch's step) and the top-down plot `walk_path.png` (image `samples/walk_path`)."""
+
+    def __init__(
+        self,
+        every_n_epochs: int = 5,
+        points: list[list[float]] | None = None,
+        style: str | None = None,
+        seed: int = 0,
+    ):
+        from walkdiff.motion.path import Polyline
+
+        self.every_n_epochs = every_n_epochs
+        self.metres = Polyline.of(TEST_PATH if points is None else points)
+        self.style = style
+        self.seed = seed
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        epoch = trainer.current_epoch + 1
+        if trainer.sanity_checking or epoch % self.every_n_epochs or not trainer.is_global_zero:
+            return
+        self.write(pl_module, trainer.logger, f"samples/epoch_{epoch:04d}", step=trainer.global_step)
+
+    @torch.no_grad()
+    def write(
+        self, pl_module, logger, artifact_dir: str, folder: Path | None = None, step: int = 0
+    ) -> list[Path]:
+        from walkdiff.motion.path import Polyline
+        from walkdiff.walk import path_error, plot_paths, render_walk, to_motion, walk_paths
+
+        styles = list(pl_module.spec["styles"])
+        style = self.style or styles[0]
+        if style not in styles:
+            raise WalkdiffError(f"WalkSamples: unknown style {style!r}; valid: {', '.join(styles)}")
+        unit = pl_module.profile.metres_per_unit
+        path = Polyline.of(self.metres.points / unit)
+        raw, start, _ = walk_paths(pl_module, path, [styles.index(style)], None, self.seed)
+        motion = to_motion(pl_module, raw[0], start)
+        started = time.perf_counter()
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(folder or tmp)
+            out.mkdir(parents=True, exist_ok=True)
+            bvh = out / f"{style}_walk.bvh"
+            write_bvh(bvh, pl_module.to_file(motion))
+            gif = render_walk(out / f"{style}_walk.gif", pl_module, motion, path, GRID_CAP, title=style)
+            skeleton = pl_module.skeleton
+            error = path_error(self.metres, motion.root_positions[:, [0, 2]] * unit)
+            title = f"{style} · off the path by {error['mean_distance']:.2f} m on average"
+            still = render_strobe(
+                out / "walk.png", [motion_world_positions(motion)], skeleton.parents, motion.fps,
+                names=skeleton.names, titles=[title], marks=Marks.of(pl_module.profile), paths=[path.points],
+                size=(960, 420), poses=9,
+            )  # fmt: skip
+            plot = plot_paths(
+                out / "walk_path.png",
+                [(style, self.metres, [(style, motion.root_positions[:, [0, 2]] * unit)])],
+            )
+            files = [bvh, gif, gif.with_suffix(".mp4"), still, plot]
+            log.info(f"walk preview: {time.perf_counter() - started:.2f} s to draw")
+            for file in files:
+                log_file(logger, file, artifact_dir)
+            log_image(logger, still, "samples/walk", step)
+            log_image(logger, plot, "samples/walk_path", step)
+            return files if folder else []
