@@ -58,6 +58,7 @@ FACING: Color = (118, 42, 131)
 PATH: Color = (0, 160, 160)  # the requested path of `walkdiff walk`
 RULER: Color = (70, 70, 70)
 FACING_LENGTH = 0.3  # body heights
+REACH = 3.0  # body heights either side of a panel's centre, at most: a still of ~4 s of walking
 
 
 @dataclass(frozen=True)
@@ -494,7 +495,9 @@ class _Scene:
                 clip - np.stack([anchor[:, 0], np.full(len(clip), floor), anchor[:, 1]], -1)[:, None]
             )
         screen = [_project(r) for r in relative]
-        stature = max(max(float(r[..., 1].max()) for r in relative), 1e-9)
+        # The body height: each clip's median over its frames of the height its joints span (bounded by its
+        # bones), so that a clip flying off (an untrained model's) does not shrink every other one to a dot.
+        stature = max(max(float(np.median(np.ptp(clip[..., 1], axis=1))) for clip in clips), 1e-9)
         self.stature = stature
         self.head_radius = 0.055 * stature  # world units until the scale is known
         reach = max(float(np.abs(right).max()) for right, _, _ in screen)
@@ -509,6 +512,9 @@ class _Scene:
                     right, up, _ = _project(flat)
                     reach = max(reach, float(np.abs(right).max()))
                     highest, lowest = max(highest, float(up.max())), min(lowest, float(up.min()))
+        # Framing for bodies (and walks of a few seconds); what lies further out is cut at the panel's edge.
+        reach = min(reach, REACH * stature)
+        highest, lowest = min(highest, 1.4 * stature), max(lowest, -stature)
         # Room for the title above and for some ground (grid, trail, ruler) below the feet.
         top, bottom, side = 1.6 * self.font.size, 0.14 * height, 0.05 * width
         self.scale = min((width / 2 - side) / max(reach, 1e-9), (height - top - bottom) / (highest - lowest))
@@ -553,7 +559,11 @@ class _Scene:
             )
         unit = marks.metres_per_unit
         # Grid lines a round number of metres apart when the units are known.
-        self.grid_step = _nice_step(stature / 2) if unit is None else _nice_step(stature * unit / 4) / unit
+        metres = 1.0 if unit is None else unit
+        step = _nice_step(stature * metres / (2 if unit is None else 3))
+        while step / metres * self.scale * math.sin(PITCH) < 6:  # lines far enough apart to read as a grid
+            step = _nice_step(2.2 * step)
+        self.grid_step = step / metres
         self.grid = self._grid_image()
 
     def ink(self, color: Color) -> int:
