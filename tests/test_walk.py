@@ -240,3 +240,31 @@ def test_a_long_walk_gets_a_capped_preview(trained, tmp_path):
     }  # fmt: skip
     with Image.open(out / "old_line.gif") as gif:
         assert gif.n_frames == 30
+
+
+def test_walker_training_preview_draws_the_path(trained, tmp_path):
+    """conf/walk_xia.yaml's callback: the first style walks a fixed path; the still (with the path on the
+    ground), the plot (in metres), BVH, GIF and MP4 come out."""
+    from walkdiff.callbacks.samples import WalkSamples
+    from walkdiff.render import PATH
+
+    model = load_walker(trained)
+    points = [[0.0, 0.0], [0.4, 0.0], [0.8, 0.2]]  # metres: ~16 units of the synthetic skeleton
+    files = WalkSamples(points=points).write(model, None, "", folder=tmp_path)
+    assert [f.name for f in files] == [
+        "angry_walk.bvh",
+        "angry_walk.gif",
+        "angry_walk.mp4",
+        "walk.png",
+        "walk_path.png",
+    ]
+    with Image.open(tmp_path / "walk.png") as still:
+        pixels = np.asarray(still.convert("RGB"))
+    assert pixels.shape[1] <= 1000 and (pixels == PATH).all(axis=-1).sum() > 100
+    with Image.open(tmp_path / "walk_path.png") as plot:
+        assert plot.size[0] >= 800
+    with Image.open(tmp_path / "angry_walk.gif") as gif:
+        gif.seek(gif.n_frames // 2)
+        assert (np.asarray(gif.convert("RGB")) == PATH).all(axis=-1).sum() > 20
+    with pytest.raises(WalkdiffError, match="unknown style 'tired'"):
+        WalkSamples(style="tired").write(model, None, "", folder=tmp_path)
