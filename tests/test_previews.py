@@ -173,6 +173,15 @@ def test_plot_and_gif_share_one_axis_convention(tmp_path):
     assert cols.max() > cols[lowest] + 30  # and +X from the corner goes right
 
 
+def test_marks_of_a_profile_name_its_feet_and_units():
+    profile = synthetic.xia_profile(synthetic.walking())
+    marks = Marks.of(profile)
+    names = profile.canonical_skeleton.names
+    assert [names[j] for j in marks.feet] == ["LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase"]
+    assert marks.contact == profile.contacts and marks.metres_per_unit == profile.metres_per_unit
+    assert marks.facing and marks.legend
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A tiny generator fitted for two steps on synthetic walks, and its data module."""

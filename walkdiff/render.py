@@ -128,11 +128,12 @@ class Marks:
 
     @classmethod
     def of(cls, profile: SkeletonProfile, legend: bool = True) -> Marks:
-        """Every mark, for clips on a profile's canonical skeleton: its feet, thresholds and units."""
+        """Every mark the profile allows, for clips on its canonical skeleton: contact marks where it has
+        feet, the facing arrow where it has left/right pairs, the ruler in its units."""
         spec = profile.contacts if profile.feet else None
         skeleton = profile.canonical_skeleton
         feet = () if spec is None else tuple(skeleton.index(name) for name in spec.joints)
-        return cls(feet, spec, profile.metres_per_unit, facing=True, legend=legend)
+        return cls(feet, spec, profile.metres_per_unit, facing=profile.can_mirror, legend=legend)
 
 
 NO_MARKS = Marks()

@@ -78,7 +78,8 @@ class SampleClips(L.Callback):
     Clips are `seconds` long (default 4 s: several gait cycles), made window by window as `walkdiff
     sample` makes them; `frames` (one window when neither is given) overrides it. With `real` (and a
     data module that has clips of the content) each style's row starts with its real reference clip,
-    looped to the generated length where it is shorter (Xia's walks last 1-3 s).
+    looped to the generated length where it is shorter (Xia's walks last 1-3 s). `video: false` skips
+    the MP4 (its encoding costs more than the GIF's drawing).
     """
 
     def __init__(
@@ -91,9 +92,11 @@ class SampleClips(L.Callback):
         sampler: str = "ddpm",
         steps: int | None = None,
         real: bool = True,
+        video: bool = True,
     ):
         self.every_n_epochs = every_n_epochs
         self.content = content
+        self.video = video
         self.frames = frames
         self.seconds = seconds
         self.seed = seed
@@ -144,12 +147,12 @@ class SampleClips(L.Callback):
             common = {"names": skeleton.names, "titles": titles, "marks": marks, "columns": columns}
             gif = render_gif(
                 out / "styles.gif", positions, skeleton.parents, fps, size=GIF_PANEL, max_fps=GIF_FPS,
-                cap=GRID_CAP, video=True, **common,
+                cap=GRID_CAP, video=self.video, **common,
             )  # fmt: skip
             still = render_strobe(
                 out / "styles.png", positions, skeleton.parents, fps, size=STILL_PANEL, turn=True, **common
             )
-            files += [gif, gif.with_suffix(".mp4"), still]
+            files += [gif, *([gif.with_suffix(".mp4")] if self.video else []), still]
             log.info(f"style grid preview: {time.perf_counter() - started:.2f} s to decode and draw")
             for path in files:
                 log_file(logger, path, artifact_dir)
@@ -182,10 +185,11 @@ TEST_PATH = ((0.0, 0.0), (0.8, 0.0), (1.6, 0.4), (2.4, 0.0), (3.2, -0.4), (4.0, 
 
 
 class WalkSamples(L.Callback):
-    """Every N epochs the path walker walks a fixed path (`points`, [x, z] in metres; `style` at its
-    training pace, the first style by default), and logs `samples/epoch_NNNN/<style>_walk.bvh`, its GIF
-    and MP4 with the path drawn on the ground, the still `walk.png` (the run's image `samples/walk` at
-    the epoch's step) and the top-down plot `walk_path.png` (image `samples/walk_path`)."""
+    """Every N epochs the path walker walks a fixed path (`points`, [x, z] in metres) as `style` (by
+    default the first style with walks in the training data) at its training pace, and logs
+    `samples/epoch_NNNN/<style>_walk.bvh`, its GIF and MP4 with the path drawn on the ground, the still
+    `walk.png` (the run's image `samples/walk` at the epoch's step) and the top-down plot
+    `walk_path.png` (image `samples/walk_path`)."""
 
     def __init__(
         self,
@@ -215,7 +219,8 @@ class WalkSamples(L.Callback):
         from walkdiff.walk import path_error, plot_paths, render_walk, to_motion, walk_paths
 
         styles = list(pl_module.spec["styles"])
-        style = self.style or styles[0]
+        walked = [s for s, speed in zip(styles, pl_module.style_speed.tolist(), strict=True) if speed > 0]
+        style = self.style or (walked or styles)[0]  # the first style the training data has walks of
         if style not in styles:
             raise WalkdiffError(f"WalkSamples: unknown style {style!r}; valid: {', '.join(styles)}")
         unit = pl_module.profile.metres_per_unit
