@@ -201,7 +201,7 @@ def tiny(tmp_path_factory):
 def test_style_grid_shows_real_beside_generated_long_and_readable(tiny, tmp_path):
     model, dm = tiny
     styles = list(model.spec["styles"])
-    callback = SampleClips(content="walk", sampler="ddim", steps=2)
+    callback = SampleClips(content="walk", sampler="ddim", steps=2, video=True)
     callback.references = real_references(dm, styles, "walk")
     assert sorted(callback.references) == ["angry", "old"]  # the synthetic data's two styles
     # The same reference every time: the longest training clip of the style and content.
@@ -232,6 +232,7 @@ def test_style_grid_without_a_real_clip_says_so(tiny, tmp_path, caplog):
     callback = SampleClips(content="walk", sampler="ddim", steps=2)
     callback.references = real_references(dm, list(model.spec["styles"]), "walk")
     files = {f.name: f for f in callback.write(model, None, "", folder=tmp_path)}
+    assert "styles.mp4" not in files  # GIF only by default
     assert "no real walk clip of childlike, depressed" in caplog.text
     with Image.open(files["styles.png"]) as still:
         assert still.size[0] <= 1000 and still.size[0] / 2 >= 300  # generated only, two per row

@@ -4,7 +4,7 @@ the styled generator, a walk along a fixed path (`WalkSamples`) for the path wal
 The style grid has one row per style: a real clip of that style and content from the training data
 (the same clip every epoch) beside a generated one (from the same seed every epoch), so the epochs
 compare. It is logged as a still (`render_strobe`, the run's image `samples/styles` at the epoch's
-step, so MLflow's image view steps through the epochs) and as a GIF and MP4 beside the BVH files.
+step, so MLflow's image view steps through the epochs) and as a GIF (and MP4) beside the BVH files.
 """
 
 from __future__ import annotations
@@ -72,14 +72,14 @@ def real_references(datamodule, styles: list[str], content: str) -> dict[str, tu
 
 
 class SampleClips(L.Callback):
-    """Logs `samples/epoch_NNNN/<style>_<content>.bvh`, `styles.gif`, `styles.mp4` and the still
+    """Logs `samples/epoch_NNNN/<style>_<content>.bvh`, `styles.gif` (and `styles.mp4`) and the still
     `styles.png`, which is also the run's image `samples/styles` at the epoch's step.
 
     Clips are `seconds` long (default 4 s: several gait cycles), made window by window as `walkdiff
     sample` makes them; `frames` (one window when neither is given) overrides it. With `real` (and a
     data module that has clips of the content) each style's row starts with its real reference clip,
-    looped to the generated length where it is shorter (Xia's walks last 1-3 s). `video: false` skips
-    the MP4 (its encoding costs more than the GIF's drawing).
+    looped to the generated length where it is shorter (Xia's walks last 1-3 s). `video: true` adds the
+    same frames as MP4 (off by default: encoding it costs several times the GIF's drawing).
     """
 
     def __init__(
@@ -92,7 +92,7 @@ class SampleClips(L.Callback):
         sampler: str = "ddpm",
         steps: int | None = None,
         real: bool = True,
-        video: bool = True,
+        video: bool = False,
     ):
         self.every_n_epochs = every_n_epochs
         self.content = content
