@@ -519,7 +519,10 @@ class _Scene:
         # Room for the title above and for some ground (grid, trail, ruler) below the feet.
         top, bottom, side = 1.6 * self.font.size, 0.14 * height, 0.05 * width
         self.scale = min((width / 2 - side) / max(reach, 1e-9), (height - top - bottom) / (highest - lowest))
-        self.origin = np.array([width / 2, top + highest * self.scale])  # pixel of the ground below the root
+        spare = (height - top - bottom) - (highest - lowest) * self.scale  # when the width limits the scale
+        self.origin = np.array(
+            [width / 2, top + spare / 2 + highest * self.scale]
+        )  # the ground below the root
         self.head_radius *= self.scale
 
         self.palette: dict[Color, int] = {BACKGROUND: 0}  # index 0: new images start as background
