@@ -437,7 +437,6 @@ class _Clip:
     depth: np.ndarray  # (F, J) towards the camera: far bones are drawn first
     root: np.ndarray  # (F, 2) the root's world x, z
     anchor: np.ndarray  # (F, 2) the world x, z the camera looks at: the root, or one fixed point
-    floor: float  # world height of the clip's ground
     inks: list[list[int]]  # per shade (faint to full), palette index of the bone ending at each joint
     trail_inks: list[int]  # from faint (oldest) to full
     feet: np.ndarray | None  # (F, n, 3) world positions of the marked joints
@@ -482,7 +481,7 @@ class _Scene:
 
         # Each clip is seen from above its own root (or the middle of its path) horizontally and its own
         # lowest point vertically.
-        relative, anchors, floors = [], [], []
+        relative, anchors = [], []
         for clip, path in zip(clips, paths, strict=True):
             floor = float(clip[..., 1].min())
             if follow:
@@ -491,7 +490,6 @@ class _Scene:
                 ground = clip[:, 0, [0, 2]] if path is None else np.concatenate([clip[:, 0, [0, 2]], path])
                 anchor = np.repeat(((ground.min(0) + ground.max(0)) / 2)[None], len(clip), axis=0)
             anchors.append(anchor)
-            floors.append(floor)
             relative.append(
                 clip - np.stack([anchor[:, 0], np.full(len(clip), floor), anchor[:, 1]], -1)[:, None]
             )
@@ -547,7 +545,6 @@ class _Scene:
                     depth=depth,
                     root=clip[:, 0, [0, 2]],
                     anchor=anchors[i],
-                    floor=floors[i],
                     inks=[
                         [self.ink(_mix(s or body, 0.25 + 0.75 * (k + 1) / shades)) for s in self.sides]
                         for k in range(shades)
