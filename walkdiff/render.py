@@ -413,22 +413,23 @@ def _mix(color: Color, amount: float) -> Color:
 
 def facing_directions(positions: np.ndarray, parents: np.ndarray, names: Sequence[str]) -> np.ndarray:
     """(F, 2) unit ground directions (x, z) the body faces: up x (right hip - left hip), the hips being
-    the left/right joint pair nearest the root that lies apart (CMU's hip joints sit on the root)."""
+    the left/right joint pair nearest the root that lies apart (CMU's hip joints sit on the root; else
+    the pair furthest apart). NaN where the pair coincides on the ground: no facing to show there."""
 
     def depth(j: int) -> int:
         return 0 if parents[j] < 0 else 1 + depth(int(parents[j]))
 
     stature = float(np.ptp(positions[..., 1]))
-    apart = []
-    for left, right in sorted(name_pairs(names), key=lambda pair: (depth(pair[0]), pair)):
-        across = positions[:, right] - positions[:, left]
-        if np.median(np.hypot(across[:, 0], across[:, 2])) > 0.03 * stature:
-            apart = across
-            break
-    if len(apart) == 0:
-        raise WalkdiffError("the facing arrow needs a left/right joint pair that lies apart; none does")
-    facing = np.stack([apart[:, 2], -apart[:, 0]], axis=-1)  # (0, 1, 0) x across, on the ground
-    return facing / np.maximum(np.linalg.norm(facing, axis=-1, keepdims=True), 1e-12)
+    pairs = sorted(name_pairs(names), key=lambda pair: (depth(pair[0]), pair))
+    across = [positions[:, right] - positions[:, left] for left, right in pairs]
+    apart = [float(np.median(np.hypot(a[:, 0], a[:, 2]))) for a in across]
+    chosen = next((a for a, d in zip(across, apart, strict=True) if d > 0.03 * stature), None)
+    if chosen is None:
+        chosen = across[int(np.argmax(apart))]
+    facing = np.stack([chosen[:, 2], -chosen[:, 0]], axis=-1)  # (0, 1, 0) x across, on the ground
+    length = np.linalg.norm(facing, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(length > 1e-9 * max(stature, 1e-9), facing / length, np.nan)
 
 
 @dataclass
@@ -719,7 +720,10 @@ class _Scene:
                 draw.ellipse(box, fill=self.planted_ink)
 
     def _draw_facing(self, draw: ImageDraw.ImageDraw, clip: _Clip, frame: int, anchor: np.ndarray) -> None:
-        """An arrow on the ground from the root along where the body faces at `frame`."""
+        """An arrow on the ground from the root along where the body faces at `frame` (none where the
+        hips coincide)."""
+        if not np.isfinite(clip.facing[frame]).all():
+            return
         root = clip.root[frame]
         tip = root + clip.facing[frame] * FACING_LENGTH * self.stature
         start, end = self._ground_pixels(np.stack([root, tip]) - anchor)
