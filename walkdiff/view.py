@@ -23,6 +23,7 @@ from walkdiff.tools import file_profile
 
 CENTRE = (60, 60, 60)
 ROW_SPACING = 1.2  # metres between the clips' rows
+WINDOW = (1000, 700)  # the browser window `limb_pixels` reads screenshots of
 
 
 @dataclass
@@ -81,6 +82,27 @@ def lay_out(clips: list[ViewedClip]) -> tuple[np.ndarray, float]:
         reach = max(reach, np.ptp(clip.positions[..., 0]))
     centre = np.array([reach / 2, 0.9, -(len(clips) - 1) * ROW_SPACING / 2])
     return centre, max(4.0, 1.2 * reach, 1.5 * len(clips) * ROW_SPACING)
+
+
+def limb_pixels(png: bytes) -> tuple[int, int]:
+    """Pixels of the left (blue) and right (orange) limbs in a screenshot of the page in a WINDOW-sized
+    browser, outside its panels: the skeletons are drawn where both are present."""
+    import io
+
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    scene = np.ones(rgb.shape[:2], bool)
+    scene[:160, :320] = False  # the browser's notice about software WebGL
+    scene[:300, 640:] = False  # the controls
+    r, b = rgb[..., 0], rgb[..., 2]
+    return int(((b > r + 50) & scene).sum()), int(((r > b + 60) & (r > 180) & scene).sum())
+
+
+def skeletons_shown(left: int, right: int) -> bool:
+    """Both sides' limbs on screen (quiet: ~1,000 pixels of each for two clips; a busy machine catches
+    the limbs mid-update, fewer of one side then)."""
+    return left + right > 400 and min(left, right) > 50
 
 
 def view(paths: list[str], host: str = "127.0.0.1", port: int = 8080, profile: str | None = None) -> None:
