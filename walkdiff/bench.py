@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -860,8 +861,9 @@ def _default_view_files() -> list[str]:
     return [str(f) for f in files]
 
 
-def _serve_view(files: list[str]):
-    """Start `walkdiff view FILES --port 0`: (the process, its address, seconds until it served)."""
+@contextlib.contextmanager
+def _serving_view(files: list[str]):
+    """`walkdiff view FILES --port 0` running: (its address, seconds it took to serve)."""
     import re
     import subprocess
     import threading
@@ -872,15 +874,27 @@ def _serve_view(files: list[str]):
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env=os.environ | {"WALKDIFF_PROGRESS": "0"},
     )  # fmt: skip
-    said = []
-    for line in server.stdout:
-        said.append(line)
-        address = re.search(r"walkdiff view: (http://\S+)", line)
-        if address:
-            threading.Thread(target=server.stdout.read, daemon=True).start()  # never block its prints
-            return server, address[1], time.perf_counter() - started
-    server.wait()
-    raise WalkdiffError(f"bench view: `walkdiff view` ended without serving: {''.join(said)[-500:].strip()}")
+    drain = threading.Thread(target=server.stdout.read, daemon=True)  # never block its prints
+    try:
+        said = []
+        for line in server.stdout:
+            said.append(line)
+            address = re.search(r"walkdiff view: (http://\S+)", line)
+            if address:
+                drain.start()
+                yield address[1], time.perf_counter() - started
+                break
+        else:
+            server.wait()
+            raise WalkdiffError(
+                f"bench view: `walkdiff view` ended without serving: {''.join(said)[-500:].strip()}"
+            )
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+        if drain.is_alive():
+            drain.join(timeout=10)
+        server.stdout.close()
 
 
 def _drawn(page) -> tuple[int, int] | None:
@@ -899,9 +913,11 @@ def bench_view(out: str, files: list[str] | None = None, repeats: int = 5, timeo
     from walkdiff.view import WINDOW
 
     files = list(files) if files else _default_view_files()
-    server, address, served = _serve_view(files)
+    for file in files:
+        if not Path(file).is_file():
+            raise WalkdiffError(f"bench view: {file}: no such BVH file", path=file)
     shown, shots = [], []
-    try:
+    with _serving_view(files) as (address, served):
         for _ in progress(range(repeats), desc="bench view", unit="load"):
             with Browser(address, *WINDOW, timeout=timeout) as page:
                 pixels = page.wait_until(
@@ -909,9 +925,6 @@ def bench_view(out: str, files: list[str] | None = None, repeats: int = 5, timeo
                 )
                 shown.append(time.monotonic() - page.launched)
                 shots.append(pixels)
-    finally:
-        server.terminate()
-        server.wait(timeout=30)
     result = {
         "benchmark": "view",
         "files": files,
