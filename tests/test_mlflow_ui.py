@@ -26,7 +26,7 @@ from walkdiff.tracking import ui_addresses
 
 # CI installs Debian's chromium (.ci/run); elsewhere the browser test runs where one is installed.
 REQUIRE_BROWSER = os.environ.get("WALKDIFF_REQUIRE_BROWSER") == "1"
-pytestmark = pytest.mark.skipif(
+browser = pytest.mark.skipif(
     find_chromium() is None and not REQUIRE_BROWSER, reason="no chromium here (CI installs it)"
 )
 SERVER_START_S = 180  # the MLflow server starts in ~5 s on a quiet machine; a busy one takes longer
@@ -117,6 +117,7 @@ def _ink(png: bytes, box: tuple[int, int, int, int]) -> int:
     return int((np.abs(patch - np.median(patch)) > 80).sum())
 
 
+@browser
 def test_the_address_make_ui_prints_opens_the_run_list(ui, tmp_path):
     experiment, name = ui["experiment"], ui["run"].info.run_name
     addresses = ui_addresses(ui["uri"], ui["base"])
@@ -131,6 +132,7 @@ def test_the_address_make_ui_prints_opens_the_run_list(ui, tmp_path):
         assert _ink(png, _element_box(page, name)) > 30  # the run's name is drawn
 
 
+@browser
 def test_switching_the_sidebar_once_opens_every_experiment_on_its_runs(ui):
     """What README tells users who click through the experiment list instead."""
     experiment = ui["experiment"]
@@ -147,6 +149,7 @@ def test_switching_the_sidebar_once_opens_every_experiment_on_its_runs(ui):
         assert f"/experiments/{experiment.experiment_id}/runs?" in page.url, page.url
 
 
+@browser
 def test_the_artifacts_list_the_best_and_last_checkpoints(ui, tmp_path):
     experiment, run_id = ui["experiment"], ui["run"].info.run_id
     files = {a.path for a in ui["client"].list_artifacts(run_id, "checkpoints")}
@@ -172,6 +175,7 @@ def test_the_artifacts_list_the_best_and_last_checkpoints(ui, tmp_path):
         (tmp_path / "artifacts.png").write_bytes(page.wait_until(drawn, "best.ckpt and last.ckpt drawn"))
 
 
+@browser
 def test_the_run_shows_about_one_parameter_per_hyperparameter(ui, tmp_path):
     experiment, found = ui["experiment"], ui["run"]
     # The hyperparameters the run was configured with: every init argument of its model and data module
@@ -204,3 +208,12 @@ def test_the_run_shows_about_one_parameter_per_hyperparameter(ui, tmp_path):
     assert int(shown) == len(logged)
     assert int(shown) <= 1.2 * hyperparameters
     print(f"{shown} parameters shown for {hyperparameters} hyperparameters")
+
+
+def test_make_ui_on_a_store_that_does_not_exist_yet_lists_nothing_and_creates_nothing(tmp_path, capsys):
+    from walkdiff.tracking import print_ui_addresses
+
+    store = tmp_path / "mlruns" / "mlflow.db"
+    assert ui_addresses(f"sqlite:///{store}", "http://127.0.0.1:5000") == {}
+    print_ui_addresses(f"sqlite:///{store}", "http://127.0.0.1:5000")
+    assert "none yet" in capsys.readouterr().out and not store.exists()
