@@ -5,6 +5,7 @@ STAMP    := $(VENV)/.installed
 LOCK     := conf/constraints.txt
 CONFIG   ?=
 MLFLOW_DB := sqlite:///mlruns/mlflow.db
+UI_PORT  ?= 5000
 
 EVALUATOR := checkpoints/evaluator_xia/last.ckpt
 
@@ -37,11 +38,12 @@ train: install $(EVALUATOR)
 	fi; \
 	$(VENV)/bin/walkdiff fit --config $$cfg
 
+# Prints each experiment's run list first: MLflow 3.17 opens experiments on its GenAI pages unless told.
 ui: install
-	@echo "MLflow UI: open http://127.0.0.1:5000/#/experiments?workflowType=machine_learning (Ctrl-C to stop)"
+	@$(PY) -c "from walkdiff.tracking import print_ui_addresses as p; p('$(MLFLOW_DB)', 'http://127.0.0.1:$(UI_PORT)')"
 	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow server \
 	  --backend-store-uri $(MLFLOW_DB) --default-artifact-root ./mlruns/artifacts \
-	  --host 127.0.0.1 --port 5000 --workers 1
+	  --host 127.0.0.1 --port $(UI_PORT) --workers 1
 
 lint: install
 	$(VENV)/bin/ruff check walkdiff tests

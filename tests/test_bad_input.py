@@ -84,6 +84,7 @@ CASES = {
         ["--pck-threshold"],
     ),
     "bench with no output": (["bench", "data"], ["--out"]),
+    "bench view a missing file": (["bench", "view", "missing.bvh", "--out", "v.json"], ["missing.bvh"]),
     "an unknown command": (["train"], ["train", "choose from"]),
     "view a missing file": (["view", "missing.bvh", "--port", "0"], ["missing.bvh"]),
     "view a truncated BVH": (["view", "text.bvh", "--port", "0"], ["text.bvh"]),

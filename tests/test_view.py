@@ -3,6 +3,7 @@ headless Chromium, shows the skeletons (their left/right colours counted in a sc
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -13,10 +14,9 @@ import time
 import numpy as np
 import pytest
 from disguise import disguise
-from PIL import Image
 
 from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.view import ROW_SPACING, lay_out, load_clip
+from walkdiff.view import ROW_SPACING, WINDOW, lay_out, limb_pixels, load_clip, skeletons_shown
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # CI installs Debian's chromium (.ci/run); elsewhere the browser test runs where one is installed.
@@ -47,16 +47,6 @@ def test_clips_stand_up_in_metres_and_walk_the_same_way_in_rows(clips):
     assert distance >= 4.0 and centre[2] == pytest.approx(-ROW_SPACING / 2)
 
 
-def _skeleton_pixels(png) -> tuple[int, int]:
-    """Pixels of the left (blue) and right (orange) limbs, outside the page's panels."""
-    rgb = np.asarray(Image.open(png).convert("RGB")).astype(int)
-    scene = np.ones(rgb.shape[:2], bool)
-    scene[:160, :320] = False  # the browser's notice about software WebGL
-    scene[:300, 640:] = False  # the controls
-    r, b = rgb[..., 0], rgb[..., 2]
-    return int(((b > r + 50) & scene).sum()), int(((r > b + 60) & (r > 180) & scene).sum())
-
-
 @pytest.mark.skipif(CHROMIUM is None and not REQUIRE_BROWSER, reason="no chromium here (CI installs it)")
 def test_the_page_shows_the_skeletons_in_a_headless_browser(clips, tmp_path):
     assert CHROMIUM is not None, "CI must have chromium: .ci/run installs Debian's package"
@@ -79,17 +69,31 @@ def test_the_page_shows_the_skeletons_in_a_headless_browser(clips, tmp_path):
                 CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
                 "--no-first-run", "--disable-background-networking", "--disable-component-update",
                 "--disable-sync",
-                f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1000,700",
+                f"--user-data-dir={tmp_path / 'profile'}", "--window-size={},{}".format(*WINDOW),
                 "--virtual-time-budget=2500", f"--screenshot={png}", address[1],
             ],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert png.exists(), browser.stderr[-2000:]
-        left, right = _skeleton_pixels(png)
-        # Quiet: ~1,000 of each; a busy machine catches the limbs mid-update, fewer of one side then.
-        assert left + right > 400 and min(left, right) > 50, (left, right)
+        left, right = limb_pixels(png.read_bytes())
+        assert skeletons_shown(left, right), (left, right)
         shot = time.monotonic() - opened
         print(f"served {opened - started:.1f} s after start; page shot {shot:.1f} s after opening")
     finally:
         server.terminate()
         server.communicate(timeout=30)
+
+
+@pytest.mark.skipif(CHROMIUM is None and not REQUIRE_BROWSER, reason="no chromium here (CI installs it)")
+def test_bench_view_times_the_page_until_the_skeletons_show(clips, tmp_path, capsys):
+    from walkdiff.cli import main
+
+    out = tmp_path / "view.json"
+    assert main(["bench", "view", *map(str, clips), "--repeats", "1", "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["files"] == [str(c) for c in clips] and len(result["shown_s_all"]) == 1
+    ((left, right),) = result["limb_pixels_left_right"]
+    assert skeletons_shown(left, right)
+    assert result["shown_s_median"] > 0 and result["served_s"] > 0
+    assert main(["bench", "view", *map(str, clips), "--out", str(out)]) == 1  # no --overwrite
+    assert "--overwrite" in capsys.readouterr().err

@@ -440,6 +440,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--gesture", default=None, help="DiffMotion checkpoint: also `gesture` on long audio")
     b.add_argument("--audio", default=None, help="speech WAV, repeated to each of --seconds (with --gesture)")
     b.add_argument("--seconds", default="10,120", help="walk / speech seconds (default 10,120)")
+    b = bench.add_parser(
+        "view", help="seconds until `walkdiff view` shows its skeletons in headless Chromium"
+    )
+    b.add_argument("files", nargs="*", help="BVH files (default: the first two of the data root's xia/)")
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument(
+        "--repeats", type=count(1), default=5, help="page loads, each in a fresh browser (default 5)"
+    )
     b = bench.add_parser("walk", help="path-following error and style accuracy of walks along test paths")
     b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")

@@ -138,3 +138,38 @@ def run_params(config: dict) -> dict[str, str]:
         key: value if isinstance(value, str | int | float | bool) or value is None else json.dumps(value)
         for key, value in params.items()
     }
+
+
+# MLflow 3.17's UI opens an experiment on the pages of its sidebar's switch (GenAI, the default, or Model
+# training; the browser remembers the last switch), whatever the experiment's tags say. An address that
+# carries the switch opens the run list in any browser.
+RUN_LIST = "#/experiments/{id}?workflowType=machine_learning"
+
+
+def ui_addresses(uri: str, base: str) -> dict[str, str]:
+    """Each experiment with runs in the store at `uri` -> the address of its run list in the MLflow UI
+    served at `base` (`http://127.0.0.1:5000`). An sqlite store that does not exist yet has none (and is
+    not created)."""
+    from mlflow.tracking import MlflowClient
+
+    uri = absolute_uri(uri)
+    if uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).is_file():
+        return {}
+    client = MlflowClient(tracking_uri=uri)
+    return {
+        experiment.name: f"{base.rstrip('/')}/{RUN_LIST.format(id=experiment.experiment_id)}"
+        for experiment in client.search_experiments()
+        if client.search_runs([experiment.experiment_id], max_results=1)
+    }
+
+
+def print_ui_addresses(uri: str, base: str) -> None:
+    """What `make ui` says before it starts the server."""
+    addresses = ui_addresses(uri, base)
+    print(f"MLflow UI on {base} (Ctrl-C to stop). The runs of each experiment:")
+    for name, address in sorted(addresses.items()):
+        print(f"  {name}: {address}")
+    if not addresses:
+        print(f"  none yet in {uri}: `walkdiff fit --config ...` makes one")
+    print('In the UI, switch the sidebar to "Model training" once: your browser then opens every experiment')
+    print("on its runs (MLflow 3.17 opens experiments on its GenAI pages otherwise).")

@@ -23,6 +23,7 @@ from walkdiff.tools import file_profile
 
 CENTRE = (60, 60, 60)
 ROW_SPACING = 1.2  # metres between the clips' rows
+WINDOW = (1000, 700)  # the browser window `limb_pixels` reads screenshots of
 
 
 @dataclass
@@ -83,6 +84,31 @@ def lay_out(clips: list[ViewedClip]) -> tuple[np.ndarray, float]:
     return centre, max(4.0, 1.2 * reach, 1.5 * len(clips) * ROW_SPACING)
 
 
+def limb_pixels(png: bytes) -> tuple[int, int]:
+    """Pixels of the left (light blue) and right (orange) limbs, as the page draws them, in a screenshot of
+    the page in a WINDOW-sized browser. The page's own blues (sliders, checkbox, the axes gizmo) are more
+    saturated, and its panels and the gizmo's corner are left out."""
+    import io
+
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    scene = np.ones(rgb.shape[:2], bool)
+    scene[:160, :320] = False  # the browser's notice about software WebGL
+    scene[:300, 640:] = False  # the controls
+    scene[-70:, :70] = False  # the axes gizmo
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    left = (b > r + 50) & (g > r + 30) & (b < g + 60)
+    right = (r > b + 60) & (r > 180) & (g > b + 20) & (g < r - 25)
+    return int((left & scene).sum()), int((right & scene).sum())
+
+
+def skeletons_shown(left: int, right: int) -> bool:
+    """Both sides' limbs on screen (quiet: ~1,000 pixels of each for two clips; a busy machine catches
+    the limbs mid-update, fewer of one side then)."""
+    return left + right > 400 and min(left, right) > 50
+
+
 def view(paths: list[str], host: str = "127.0.0.1", port: int = 8080, profile: str | None = None) -> None:
     """Serve the page until interrupted (Ctrl-C). Port 0 takes a free port; the address is printed."""
     import viser
@@ -96,6 +122,10 @@ def view(paths: list[str], host: str = "127.0.0.1", port: int = 8080, profile: s
     except OSError as error:
         raise WalkdiffError(f"--port {port}: cannot serve on {host} ({error.strerror})") from None
     server.scene.set_up_direction("+y")
+    # Bones and grid are unlit: the default lights' shadow passes and the environment map only cost time,
+    # and in a browser without a GPU (software WebGL) they doubled the time to the first drawn skeletons.
+    server.scene.configure_default_lights(enabled=False, cast_shadow=False)
+    server.scene.configure_environment_map(hdri=None)
 
     @server.on_client_connect
     def _(client) -> None:  # beside the walks, all of them in view

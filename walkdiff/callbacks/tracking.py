@@ -1,7 +1,8 @@
 """What every `fit` records about its MLflow run, beyond Lightning's logger.
 
-- The experiment is marked a model-training one, so MLflow's UI opens it on its runs (3.x opens
-  unmarked experiments on its GenAI pages).
+- The experiment is marked a model-training one (`mlflow.experimentKind`). MLflow 3.17's UI does not
+  read that mark to choose an experiment's landing page (its sidebar's switch does, GenAI by default):
+  `make ui` prints each experiment's run-list address (`walkdiff.tracking.ui_addresses`).
 - The git commit of the code and whether it had uncommitted changes.
 - The process and host, and the runs of killed processes closed (`walkdiff.tracking.close_dead_runs`).
 - System metrics (CPU, memory, GPU) every 10 s, by MLflow's own monitor.
