@@ -353,6 +353,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument(
+        "--stream", action="store_true",
+        help="live: take the audio as it arrives, from --audio - (raw PCM: s16le, mono, at the sample rate "
+        "of the model's training audio or --rate) or from a WAV still being written (16-bit PCM or 32-bit "
+        "float, at that rate); print one JSON line per pose as soon as the model's look-ahead allows, and "
+        "write the BVH(s) at the end (no GIF)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rate", type=count(1), default=None,
+        help="with --stream --audio -: the PCM's sample rate (default: the model's, if its checkpoint says)",
+    )  # fmt: skip
+    p.add_argument(
+        "--idle", type=number(0, above=True), default=2.0,
+        help="with --stream and a WAV: it has ended once it has not grown for this many seconds (default 2)",
+    )  # fmt: skip
+    p.add_argument(
+        "--seconds",
+        type=number(0, above=True),
+        default=None,
+        help="with --stream: stop after this much audio",
+    )
 
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
     p.add_argument("--ckpt", required=True, help="PathWalker checkpoint (conf/walk_xia.yaml)")
@@ -366,6 +387,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument(
+        "--stream", action="store_true",
+        help='live: --path is JSON lines arriving over time ({"x": metres, "z": metres} each), from stdin '
+        "(--path -) or a file still being written; print one JSON line per frame as soon as the path ahead "
+        "allows, and write the BVH at the end (no GIF or plot)",
+    )  # fmt: skip
+    p.add_argument(
+        "--idle", type=number(0, above=True), default=2.0,
+        help="with --stream and a file: the path has ended once the file has not grown for this many seconds",
+    )  # fmt: skip
 
     # Its own verb: `evaluate` is the walking protocol (an evaluator network, FMD, style accuracy);
     # none of its options apply to gestures, which are scored against the held-out motion itself.
@@ -586,6 +617,15 @@ def option_error(text: str) -> str:
     return lines[0] if detail is None else f"{lines[0].rstrip(':')}: {detail}"
 
 
+def stream_only(options: dict, names: tuple[str, ...]) -> None:
+    """Drop the --stream options from `options`, refusing any that was given without --stream."""
+    defaults = {"rate": None, "seconds": None, "idle": 2.0}
+    for name in names:
+        if options.pop(name) != defaults[name]:
+            raise WalkdiffError(f"--{name} needs --stream")
+    del options["stream"]
+
+
 def run_command(args: argparse.Namespace) -> int:
     if args.command == "inspect":
         from walkdiff.tools import inspect_file
@@ -651,18 +691,28 @@ def run_command(args: argparse.Namespace) -> int:
 
         options = vars(args).copy()
         del options["command"]
-        if args.command == "gesture":
+        if args.command == "gesture" and args.stream:
+            del options["stream"], options["preview_seconds"]
+            gesture.gesture_stream(**options)  # prints its own JSON lines
+        elif args.command == "gesture":
+            stream_only(options, ("rate", "seconds", "idle"))
             print(json.dumps(strict_json(gesture.gesture(**options)), indent=2))
         else:
             gesture.evaluate_gesture(**options)
             print(f"wrote {args.out}/report.json")
     elif args.command == "walk":
         from walkdiff.files import strict_json
-        from walkdiff.walk import walk
+        from walkdiff.walk import walk, walk_stream
 
         options = vars(args).copy()
         del options["command"]
-        print(json.dumps(strict_json(walk(**options)), indent=2))
+        if args.stream:
+            for key in ("stream", "gif", "preview_seconds"):
+                del options[key]
+            walk_stream(**options)  # prints its own JSON lines
+        else:
+            stream_only(options, ("idle",))
+            print(json.dumps(strict_json(walk(**options)), indent=2))
     elif args.command == "score":
         from walkdiff.score import score
 
