@@ -34,6 +34,15 @@ def plain_argv(monkeypatch):
     monkeypatch.setattr("sys.argv", ["walkdiff"])
 
 
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny models frame by frame: one torch thread is as fast as two, and far faster on a busy machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def speech_ckpt(tmp_path_factory) -> tuple[Path, Path]:
     """A tiny DiffMotion fitted for two steps on a synthetic take; (checkpoint, takes folder)."""
@@ -361,3 +370,19 @@ def test_walk_stream_bad_line_names_it(walker_ckpt, tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("walkdiff: error: -:3: expected a JSON object") and '"y": 2' in err
     assert not list(tmp_path.glob("*.bvh"))
+
+
+def test_bench_stream_reports_latency_and_streams(speech_ckpt, walker_ckpt, tmp_path, capsys):
+    out = tmp_path / "stream.json"
+    assert main(["bench", "stream", "--out", str(out), "--ckpt", str(speech_ckpt[0]), "--walker",
+                 str(walker_ckpt), "--seconds", "1", "--frames", "1", "--most", "2"]) == 0  # fmt: skip
+    result = json.loads(out.read_text())
+    gesture, walk = result["gesture"], result["walk"]
+    assert gesture["lookahead_ms"] == pytest.approx(450.0) and gesture["target_audio_to_pose_ms"] == 500.0
+    for figure in (gesture["latency_chunk_to_pose"], gesture["latency_audio_to_pose"]):
+        assert 0 < figure["median_ms"] <= figure["p95_ms"]
+    # a pose comes after its own moment by at least the look-ahead it waits for
+    assert gesture["latency_audio_to_pose"]["median_ms"] >= 450.0
+    assert 0 <= gesture["realtime_streams"] <= 2 and "1" in gesture["seconds_per_frame_by_streams"]
+    assert walk["frames_measured"] > 0 and walk["latency_point_to_pose"]["median_ms"] > 0
+    assert 0 <= walk["realtime_streams"] <= 2

@@ -463,6 +463,29 @@ def build_parser() -> argparse.ArgumentParser:
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
     b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
+    b = bench.add_parser(
+        "stream", help="streaming latency (audio in -> pose out, path point -> frame) and real-time streams"
+    )
+    b.add_argument("--out", required=True)
+    b.add_argument(
+        "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
+    )
+    b.add_argument(
+        "--walker", default=None, help="PathWalker checkpoint (default: an untrained Xia-sized one)"
+    )
+    b.add_argument(
+        "--seconds",
+        type=number(0, above=True),
+        default=6.0,
+        help="audio / walking fed in real time (default 6)",
+    )
+    b.add_argument("--chunk-ms", type=number(0, above=True), default=20.0, help="audio chunk (default 20 ms)")
+    b.add_argument(
+        "--rate", type=count(1), default=16000, help="sample rate when the model records none (default 16000)"
+    )
+    b.add_argument("--frames", type=count(1), default=6, help="frames timed per stream count (default 6)")
+    b.add_argument("--most", type=count(1), default=256, help="most streams tried (default 256)")
+    b.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
     b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     b.add_argument("--out", required=True, help="JSON file")

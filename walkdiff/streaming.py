@@ -58,16 +58,24 @@ class StreamBatch:
         """The encoded controls (R, control_hidden) of the streams `ready` for their next frame."""
         raise NotImplementedError
 
-    def run(self) -> int:
-        """Every frame that is ready, one forward per frame for all streams with one; the frames made."""
-        made = 0
+    def step(self) -> int:
+        """One frame for every stream with one ready, in one forward; how many streams advanced."""
+        ready = [s for s in self.streams if s.ready()]
+        if not ready:
+            return 0
+        rows = None if len(ready) == len(self.streams) else torch.tensor([s.row for s in ready])
         with torch.inference_mode():
-            while ready := [s for s in self.streams if s.ready()]:
-                rows = None if len(ready) == len(self.streams) else torch.tensor([s.row for s in ready])
-                x = self.model.advance(self.frames, self.encode(ready), self.generator, rows)
-                for stream, pose in zip(ready, self.model.normalizer.denormalize(x).cpu().numpy()):
-                    stream.receive(pose)
-                made += len(ready)
+            x = self.model.advance(self.frames, self.encode(ready), self.generator, rows)
+            poses = self.model.normalizer.denormalize(x).cpu().numpy()
+        for stream, pose in zip(ready, poses):
+            stream.receive(pose)
+        return len(ready)
+
+    def run(self) -> int:
+        """Every frame that is ready, a frame at a time (streams behind others catch up); frames made."""
+        made = 0
+        while advanced := self.step():
+            made += advanced
         return made
 
 
