@@ -386,3 +386,38 @@ def test_bench_stream_reports_latency_and_streams(speech_ckpt, walker_ckpt, tmp_
     assert 0 <= gesture["realtime_streams"] <= 2 and "1" in gesture["seconds_per_frame_by_streams"]
     assert walk["frames_measured"] > 0 and walk["latency_point_to_pose"]["median_ms"] > 0
     assert 0 <= walk["realtime_streams"] <= 2
+
+
+def test_gesture_stream_follows_a_wav_while_it_is_written(speech_ckpt, tmp_path, capsys):
+    """A writer appends to the WAV (placeholder sizes in its header, as recorders leave them) while the
+    command reads it: the BVH is the whole file's."""
+    import threading
+    import time
+
+    ckpt, _ = speech_ckpt
+    samples = np.random.default_rng(5).normal(0, 0.2, RATE).astype(np.float32)
+    data = pcm(samples)
+    soundfile.write(tmp_path / "whole.wav", np.frombuffer(data, "<i2"), RATE, subtype="PCM_16")
+    header = (tmp_path / "whole.wav").read_bytes()[:44]
+    header = header[:4] + b"\xff\xff\xff\xff" + header[8:40] + b"\xff\xff\xff\xff"  # sizes unknown yet
+    growing = tmp_path / "live.wav"
+    growing.write_bytes(header)
+
+    def write():
+        with growing.open("ab") as f:
+            for at in range(0, len(data), 1600):  # 50 ms of audio every 10 ms
+                f.write(data[at : at + 1600])
+                f.flush()
+                time.sleep(0.01)
+
+    writer = threading.Thread(target=write)
+    writer.start()
+    assert main(["gesture", "--stream", "--idle", "0.5", "--ckpt", str(ckpt), "--audio", str(growing),
+                 "--out", str(tmp_path / "live")]) == 0  # fmt: skip
+    writer.join()
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert lines[-1]["frames"] == 21 and lines[-1]["seconds"] == pytest.approx(1.0)
+    assert main(["gesture", "--ckpt", str(ckpt), "--audio", str(tmp_path / "whole.wav"), "--out",
+                 str(tmp_path / "whole"), "--preview-seconds", "1"]) == 0  # fmt: skip
+    live, whole = read_bvh(tmp_path / "live" / "live.bvh"), read_bvh(tmp_path / "whole" / "whole.bvh")
+    np.testing.assert_allclose(live.rotations, whole.rotations, atol=1e-4)
