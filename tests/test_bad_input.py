@@ -92,6 +92,10 @@ CASES = {
         ["--idle needs --stream"],
     ),
     "bench stream with no frames": (["bench", "stream", "--out", "s.json", "--frames", "0"], ["--frames"]),
+    "bench stream with a word for threads": (
+        ["bench", "stream", "--out", "s.json", "--threads", "two"],
+        ["--threads"],
+    ),
     "evaluate-gesture at a nan threshold": (
         ["evaluate-gesture", "--ckpt", "g", "--out", "o", "--pck-threshold", "nan"],
         ["--pck-threshold"],

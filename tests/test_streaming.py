@@ -236,6 +236,12 @@ def test_streams_batched_one_forward_per_frame(speech_ckpt, monkeypatch):
     frames_ahead, frames_behind = len(ahead.take()), len(behind.take())
     assert frames_ahead == 40 - 8 and frames_behind == 20 - 8
     assert calls == [2] * frames_behind + [1] * (frames_ahead - frames_behind)
+    # A stream joining a running batch starts from the beginning (zero state, mean pose), alone.
+    late = GestureStream(model, batch=batch)
+    late.feed(takes[1, :RATE])
+    calls.clear()
+    batch.run()
+    assert calls == [1] * 12 and len(late.take()) == 12 and len(ahead.take()) == len(behind.take()) == 0
 
 
 # ---------------------------------------------------------------- walking streams
@@ -375,7 +381,8 @@ def test_walk_stream_bad_line_names_it(walker_ckpt, tmp_path, monkeypatch, capsy
 def test_bench_stream_reports_latency_and_streams(speech_ckpt, walker_ckpt, tmp_path, capsys):
     out = tmp_path / "stream.json"
     assert main(["bench", "stream", "--out", str(out), "--ckpt", str(speech_ckpt[0]), "--walker",
-                 str(walker_ckpt), "--seconds", "1", "--frames", "1", "--most", "2"]) == 0  # fmt: skip
+                 str(walker_ckpt), "--seconds", "1", "--frames", "1", "--most", "2",
+                 "--threads", "1"]) == 0  # fmt: skip
     result = json.loads(out.read_text())
     gesture, walk = result["gesture"], result["walk"]
     assert gesture["lookahead_ms"] == pytest.approx(450.0) and gesture["target_audio_to_pose_ms"] == 500.0
@@ -383,7 +390,10 @@ def test_bench_stream_reports_latency_and_streams(speech_ckpt, walker_ckpt, tmp_
         assert 0 < figure["median_ms"] <= figure["p95_ms"]
     # a pose comes after its own moment by at least the look-ahead it waits for
     assert gesture["latency_audio_to_pose"]["median_ms"] >= 450.0
-    assert 0 <= gesture["realtime_streams"] <= 2 and "1" in gesture["seconds_per_frame_by_streams"]
+    assert (
+        0 <= gesture["realtime_streams"] <= 2
+        and "1" in gesture["by_threads"]["1"]["seconds_per_frame_by_streams"]
+    )
     assert walk["frames_measured"] > 0 and walk["latency_point_to_pose"]["median_ms"] > 0
     assert 0 <= walk["realtime_streams"] <= 2
 
