@@ -17,7 +17,7 @@ walker's frame t needs the path up to where its control reads it (`WalkStream.re
 Reproducibility: a single stream with seed s makes the poses `walkdiff gesture --seed s` (or `walk`)
 makes from the whole input, up to float rounding of the audio encoding. Streams of a batch share one
 random generator, drawn in one go for the streams advanced together: streams that advance in lockstep
-(the same audio at the same time, as `--streams N`) equal the offline batch exactly; streams at
+(the same audio at the same time, as `--streams N`) equal the offline batch, to the same rounding; streams at
 different points of their input are valid samples whose noise depends on which frames were batched.
 """
 
@@ -63,7 +63,8 @@ class StreamBatch:
         ready = [s for s in self.streams if s.ready()]
         if not ready:
             return 0
-        rows = None if len(ready) == len(self.streams) else torch.tensor([s.row for s in ready])
+        every = len(ready) == len(self.streams)
+        rows = None if every else torch.tensor([s.row for s in ready], device=self.model.device)
         with torch.inference_mode():
             x = self.model.advance(self.frames, self.encode(ready), self.generator, rows)
             poses = self.model.normalizer.denormalize(x).cpu().numpy()

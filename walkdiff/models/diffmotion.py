@@ -150,16 +150,23 @@ class FrameStreams:
             )
 
     def select(
-        self, rows: torch.Tensor, lstm: nn.LSTM
-    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        self, rows: torch.Tensor | None, lstm: nn.LSTM
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
+        """The previous poses and LSTM state of `rows` (None: all, as they are)."""
+        if rows is None:
+            return self.previous, self.state
         if self.state is None:
             zeros = self.previous.new_zeros(lstm.num_layers, self.rows, lstm.hidden_size)
             self.state = (zeros, zeros.clone())
         return self.previous[rows], (self.state[0][:, rows], self.state[1][:, rows])
 
     def update(
-        self, rows: torch.Tensor, previous: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
+        self, rows: torch.Tensor | None, previous: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
     ) -> None:
+        """The streams `rows` (None: all) a frame on."""
+        if rows is None:
+            self.previous, self.state = previous, state
+            return
         self.previous[rows] = previous
         self.state[0][:, rows] = state[0]
         self.state[1][:, rows] = state[1]
@@ -247,11 +254,6 @@ class AutoregressiveDiffusion(MotionModule):
     ) -> torch.Tensor:
         """One frame for the streams `rows` (default: all) from their encoded controls (R, control_hidden):
         their poses (R, D), normalised; those streams' state moves on by the frame."""
-        if rows is None:
-            h, streams.state = self.encoder(streams.previous, control[:, None], streams.state)
-            x = self.sample_frame(h[:, 0], streams.tables, generator)
-            streams.previous = x[:, None]
-            return x
         previous, state = streams.select(rows, self.encoder.lstm)
         h, state = self.encoder(previous, control[:, None], state)
         x = self.sample_frame(h[:, 0], streams.tables, generator)
