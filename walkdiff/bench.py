@@ -642,8 +642,13 @@ def _percentiles(values: list[float]) -> dict:
     }
 
 
-def _stream_walker(ckpt: str | None):
-    """A PathWalker (the checkpoint, or untrained of conf/walk_xia.yaml's size on a Xia-sized body)."""
+def _stream_walker(ckpt: str | None, speed: float):
+    """A PathWalker: the checkpoint, or untrained of conf/walk_xia.yaml's size on a Xia-sized body.
+
+    Untrained weights sample poses at random, and a root that jumps anywhere outruns a path drawn at
+    walking pace; its normaliser is set to walk straight on at `speed` (units/s) whatever it samples,
+    so it waits for the path as a trained walker does (speed does not depend on the weights).
+    """
     from walkdiff.models.path_walker import PathWalker
 
     if ckpt is not None:
@@ -654,7 +659,13 @@ def _stream_walker(ckpt: str | None):
         dataset="xia", feature_dim=8 + 6 * 31, num_joints=31, window=24, fps=30.0,
         styles=tuple(f"style{i}" for i in range(8)), contents=("walk",),
     )  # fmt: skip
-    return PathWalker(spec).eval()
+    walker = PathWalker(spec).eval()
+    layout, normalizer = walker.layout, walker.normalizer
+    for part in (layout.root_vel, layout.heading_vel):
+        normalizer.std[part] = 1e-4
+    normalizer.mean[layout.root_vel] = torch.tensor([0.0, speed / spec["fps"]])  # forward is +z
+    walker.style_speed.fill_(speed)
+    return walker
 
 
 def _realtime_latency(push, arrivals: list[float], frame_times) -> tuple[list[float], list[float]]:
@@ -793,8 +804,8 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
         },
     }  # fmt: skip
 
-    walk = _stream_walker(walker)
-    wfps, speed = walk.spec["fps"], float(walk.style_speed.max()) if walker else 12.0
+    walk = _stream_walker(walker, 12.0)  # Xia units/s: ~0.7 m/s
+    wfps, speed = walk.spec["fps"], float(walk.style_speed.max())
     step = speed / wfps  # one path point per frame time, as far as the walker goes in it
     u = np.arange(round(seconds * wfps) + 200) * step
     points = np.stack([3 * speed * np.sin(u / (4 * speed)), u], axis=-1)  # a gentle S, drawn as walked
