@@ -327,6 +327,11 @@ def test_gesture_stream_from_stdin(speech_ckpt, tmp_path, monkeypatch, capsys):
     for f in frames:
         assert f["audio_time"] <= f["time"] + header["lookahead_s"] + 1e-9
         assert np.linalg.norm(f["rotations"], axis=-1) == pytest.approx(1, abs=1e-4)
+    # --seconds stops reading there: half a second of the audio is 1 + 8000 // 800 frames.
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(data)))
+    assert main(["gesture", "--stream", "--ckpt", str(ckpt), "--audio", "-", "--out", str(tmp_path / "half"),
+                 "--seconds", "0.5"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["frames"] == 11
     # Following the WAV file (complete here: it stops growing) gives the same.
     wav = str(tmp_path / "same.wav")
     assert main(["gesture", "--stream", "--idle", "0.05", "--ckpt", str(ckpt), "--audio", wav,
