@@ -349,6 +349,7 @@ def test_gesture_stream_from_stdin(speech_ckpt, tmp_path, monkeypatch, capsys):
         (None, ["--audio", "f44.wav"], "f44.wav: 44100 Hz; the model was trained on 16000 Hz audio"),
         (None, ["--audio", "u8.wav"], "u8.wav: a WAV of format 1 with 8-bit samples; expected 16-bit PCM"),
         (None, ["--audio", "text.wav"], "text.wav: not a WAV file"),
+        (None, ["--audio", "missing.wav"], "missing.wav: file not found"),
         (b"", ["--audio", "-"], "no audio arrived"),
         (
             b"\x00\x00",

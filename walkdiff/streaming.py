@@ -275,8 +275,12 @@ def read_pipe(stream) -> Iterator[bytes]:
 def read_growing(path: str | Path, idle: float, poll: float = 0.02) -> Iterator[bytes]:
     """The bytes of a file that is still being written, until it has not grown for `idle` seconds."""
     path = Path(path)
-    if not path.is_file():
+    if not path.is_file():  # now, not at the first read
         raise WalkdiffError("file not found", path=path)
+    return _follow(path, idle, poll)
+
+
+def _follow(path: Path, idle: float, poll: float) -> Iterator[bytes]:
     with path.open("rb") as f:
         quiet_since = time.monotonic()
         while True:
