@@ -668,11 +668,12 @@ def _stream_walker(ckpt: str | None, speed: float):
     return walker
 
 
-def _realtime_latency(push, arrivals: list[float], frame_times) -> tuple[list[float], list[float]]:
+def _realtime_latency(push, arrivals: list[float], frame_times) -> tuple[list[float], list[float], float]:
     """Push inputs at their arrival times (s after now, real-time pace): per frame made, the wall time
-    from the arrival of the input that completed it, and from its own moment (`frame_times(t)` s in)."""
+    from the arrival of the input that completed it, and from its own moment (`frame_times(t)` s in);
+    and the CPU seconds of this process per frame (on a busy machine, what a free core would take)."""
     latency, since_moment, made = [], [], 0
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     for i, arrival in enumerate(arrivals):
         wait = start + arrival - time.perf_counter()
         if wait > 0:
@@ -683,18 +684,21 @@ def _realtime_latency(push, arrivals: list[float], frame_times) -> tuple[list[fl
             latency.append(done - (start + arrival))
             since_moment.append(done - (start + frame_times(t)))
         made += count
-    return latency, since_moment
+    return latency, since_moment, (time.process_time() - cpu) / max(made, 1)
 
 
 def _most_streams(make_batch, fps: float, frames: int, most: int, desc: str) -> tuple[int, dict]:
     """Streams batched in lockstep, doubled (then bisected) until a frame of all of them takes longer than
     1 / fps: the most that keep real time, and the seconds per frame measured at each count."""
     timed: dict[int, float] = {}
+    cpu: dict[int, float] = {}
 
     def seconds_per_frame(n: int) -> float:
         step = make_batch(n)
         step()  # warm-up
+        started = time.process_time()
         timed[n] = _median_seconds(step, frames)
+        cpu[n] = (time.process_time() - started) / frames
         return timed[n]
 
     good, bad, n = 0, None, 1
@@ -709,7 +713,10 @@ def _most_streams(make_batch, fps: float, frames: int, most: int, desc: str) -> 
             bar.update(1)
             middle = (good + bad) // 2
             good, bad = (middle, bad) if seconds_per_frame(middle) <= 1 / fps else (good, middle)
-    return good, {str(k): round(v, 4) for k, v in sorted(timed.items())}
+    return good, {
+        "seconds_per_frame_by_streams": {str(k): round(v, 4) for k, v in sorted(timed.items())},
+        "cpu_seconds_per_frame_by_streams": {str(k): round(v, 4) for k, v in sorted(cpu.items())},
+    }
 
 
 def _sustained(make_batch, fps: float, frames: int, most: int, threads: tuple[int, ...]) -> dict:
@@ -720,7 +727,7 @@ def _sustained(make_batch, fps: float, frames: int, most: int, threads: tuple[in
         good, timed = _most_streams(
             make_batch, fps, frames, most, f"bench stream: streams, {count} thread(s)"
         )
-        rows[str(count)] = {"realtime_streams": good, "seconds_per_frame_by_streams": timed}
+        rows[str(count)] = {"realtime_streams": good, **timed}
     best = max(rows, key=lambda k: rows[k]["realtime_streams"])
     return {"realtime_streams": rows[best]["realtime_streams"], "best_threads": int(best), "by_threads": rows}
 
@@ -761,7 +768,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     stream = GestureStream(model, rate, seed)
     pieces = [audio[i : i + chunk] for i in range(0, len(audio), chunk)]
     arrivals = [min((i + 1) * chunk, len(audio)) / rate for i in range(len(pieces))]
-    latency, since_moment = _realtime_latency(
+    latency, since_moment, cpu_per_frame = _realtime_latency(
         lambda i: len(stream.push(pieces[i])), arrivals, lambda t: t / fps
     )
     lookahead_ms = 1000 * stream.features.needed(model.spec["lookahead"]) / rate
@@ -800,7 +807,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
             "latency_chunk_to_pose": _percentiles(latency),
             "latency_audio_to_pose": _percentiles(since_moment),
             "target_audio_to_pose_ms": round(lookahead_ms + 50, 1),
-            "latency_threads": 1, **sustained,
+            "latency_threads": 1, "latency_cpu_ms_per_frame": round(1000 * cpu_per_frame, 1), **sustained,
         },
     }  # fmt: skip
 
@@ -814,7 +821,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     WalkStream(walk, 0, speed, seed).push(points[: lead + 10])  # warm-up
     walking.push(points[:lead])  # the frames the lead allows at once, untimed: then a frame per point
     arrivals = [i / wfps for i in range(round(seconds * wfps))]
-    w_latency, _ = _realtime_latency(
+    w_latency, _, w_cpu_per_frame = _realtime_latency(
         lambda i: len(walking.push(points[lead + i : lead + i + 1])), arrivals, lambda t: t / wfps
     )
 
@@ -834,7 +841,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     result["walk"] = {
         "checkpoint": walker, "fps": wfps, "speed_units_s": speed, "path_lead_points": lead,
         "latency_point_to_pose": _percentiles(w_latency), "frames_measured": len(w_latency),
-        "latency_threads": 1, **w_sustained,
+        "latency_threads": 1, "latency_cpu_ms_per_frame": round(1000 * w_cpu_per_frame, 1), **w_sustained,
     }  # fmt: skip
     result["machine"] = machine()
     report(out, result)
