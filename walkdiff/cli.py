@@ -346,7 +346,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("gesture", help="speech-driven gestures from a WAV with DiffMotion: BVH + GIF")
     p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
-    p.add_argument("--audio", required=True, help="speech WAV (any rate; resampled as needed)")
+    p.add_argument(
+        "--audio",
+        required=True,
+        help="speech WAV (any rate; resampled as needed); with --stream, - for stdin",
+    )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
@@ -378,7 +382,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
     p.add_argument("--ckpt", required=True, help="PathWalker checkpoint (conf/walk_xia.yaml)")
     p.add_argument("--style", required=True, help="walking style, e.g. proud")
-    p.add_argument("--path", required=True, help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}')
+    p.add_argument(
+        "--path", required=True,
+        help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}; --stream: JSON lines (- for stdin)',
+    )  # fmt: skip
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument(
         "--speed", type=number(0, above=True), default=None, help="m/s (default: the file's, or the style's)"
