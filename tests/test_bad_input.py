@@ -79,6 +79,23 @@ CASES = {
         ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--streams", "0"],
         ["--streams"],
     ),
+    "gesture --rate without --stream": (
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--rate", "16000"],
+        ["--rate needs --stream"],
+    ),
+    "gesture --stream at a zero rate": (
+        ["gesture", "--stream", "--ckpt", "g", "--audio", "-", "--out", "o", "--rate", "0"],
+        ["--rate"],
+    ),
+    "walk --idle without --stream": (
+        ["walk", "--ckpt", "g", "--out", "o", "--path", "p", *STYLE, "--idle", "1"],
+        ["--idle needs --stream"],
+    ),
+    "bench stream with no frames": (["bench", "stream", "--out", "s.json", "--frames", "0"], ["--frames"]),
+    "bench stream with a word for threads": (
+        ["bench", "stream", "--out", "s.json", "--threads", "two"],
+        ["--threads"],
+    ),
     "evaluate-gesture at a nan threshold": (
         ["evaluate-gesture", "--ckpt", "g", "--out", "o", "--pck-threshold", "nan"],
         ["--pck-threshold"],

@@ -346,18 +346,46 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("gesture", help="speech-driven gestures from a WAV with DiffMotion: BVH + GIF")
     p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
-    p.add_argument("--audio", required=True, help="speech WAV (any rate; resampled as needed)")
+    p.add_argument(
+        "--audio",
+        required=True,
+        help="speech WAV (any rate; resampled as needed); with --stream, - for stdin",
+    )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument(
+        "--stream", action="store_true",
+        help="live: take the audio as it arrives, from --audio - (raw PCM: s16le, mono, at the sample rate "
+        "of the model's training audio or --rate) or from a WAV still being written (16-bit PCM or 32-bit "
+        "float, at that rate); print one JSON line per pose as soon as the model's look-ahead allows, and "
+        "write the BVH(s) at the end (no GIF)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rate", type=count(1), default=None,
+        help="with --stream --audio -: the PCM's sample rate (default: the model's, if its checkpoint says)",
+    )  # fmt: skip
+    p.add_argument(
+        "--idle", type=number(0, above=True), default=2.0,
+        help="with --stream and a WAV: it has ended once it has not grown for this many seconds (default 2)",
+    )  # fmt: skip
+    p.add_argument(
+        "--seconds",
+        type=number(0, above=True),
+        default=None,
+        help="with --stream: stop after this much audio",
+    )
 
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
     p.add_argument("--ckpt", required=True, help="PathWalker checkpoint (conf/walk_xia.yaml)")
     p.add_argument("--style", required=True, help="walking style, e.g. proud")
-    p.add_argument("--path", required=True, help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}')
+    p.add_argument(
+        "--path", required=True,
+        help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}; --stream: JSON lines (- for stdin)',
+    )  # fmt: skip
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument(
         "--speed", type=number(0, above=True), default=None, help="m/s (default: the file's, or the style's)"
@@ -366,6 +394,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument(
+        "--stream", action="store_true",
+        help='live: --path is JSON lines arriving over time ({"x": metres, "z": metres} each), from stdin '
+        "(--path -) or a file still being written; print one JSON line per frame as soon as the path ahead "
+        "allows, and write the BVH at the end (no GIF or plot)",
+    )  # fmt: skip
+    p.add_argument(
+        "--idle", type=number(0, above=True), default=2.0,
+        help="with --stream and a file: the path has ended once the file has not grown for this many seconds",
+    )  # fmt: skip
 
     # Its own verb: `evaluate` is the walking protocol (an evaluator network, FMD, style accuracy);
     # none of its options apply to gestures, which are scored against the held-out motion itself.
@@ -432,6 +470,33 @@ def build_parser() -> argparse.ArgumentParser:
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
     b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
+    b = bench.add_parser(
+        "stream", help="streaming latency (audio in -> pose out, path point -> frame) and real-time streams"
+    )
+    b.add_argument("--out", required=True)
+    b.add_argument(
+        "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
+    )
+    b.add_argument(
+        "--walker", default=None, help="PathWalker checkpoint (default: an untrained Xia-sized one)"
+    )
+    b.add_argument(
+        "--seconds",
+        type=number(0, above=True),
+        default=6.0,
+        help="audio / walking fed in real time (default 6)",
+    )
+    b.add_argument("--chunk-ms", type=number(0, above=True), default=20.0, help="audio chunk (default 20 ms)")
+    b.add_argument(
+        "--rate", type=count(1), default=16000, help="sample rate when the model records none (default 16000)"
+    )
+    b.add_argument("--frames", type=count(1), default=6, help="frames timed per stream count (default 6)")
+    b.add_argument("--most", type=count(1), default=256, help="most streams tried (default 256)")
+    b.add_argument(
+        "--threads",
+        default="1,2",
+        help="torch thread counts the streams are timed at (default 1,2; latency: 1)",
+    )
     b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     b.add_argument("--out", required=True, help="JSON file")
@@ -594,6 +659,15 @@ def option_error(text: str) -> str:
     return lines[0] if detail is None else f"{lines[0].rstrip(':')}: {detail}"
 
 
+def stream_only(options: dict, names: tuple[str, ...]) -> None:
+    """Drop the --stream options from `options`, refusing any that was given without --stream."""
+    defaults = {"rate": None, "seconds": None, "idle": 2.0}
+    for name in names:
+        if options.pop(name) != defaults[name]:
+            raise WalkdiffError(f"--{name} needs --stream")
+    del options["stream"]
+
+
 def run_command(args: argparse.Namespace) -> int:
     if args.command == "inspect":
         from walkdiff.tools import inspect_file
@@ -659,18 +733,28 @@ def run_command(args: argparse.Namespace) -> int:
 
         options = vars(args).copy()
         del options["command"]
-        if args.command == "gesture":
+        if args.command == "gesture" and args.stream:
+            del options["stream"], options["preview_seconds"]
+            gesture.gesture_stream(**options)  # prints its own JSON lines
+        elif args.command == "gesture":
+            stream_only(options, ("rate", "seconds", "idle"))
             print(json.dumps(strict_json(gesture.gesture(**options)), indent=2))
         else:
             gesture.evaluate_gesture(**options)
             print(f"wrote {args.out}/report.json")
     elif args.command == "walk":
         from walkdiff.files import strict_json
-        from walkdiff.walk import walk
+        from walkdiff.walk import walk, walk_stream
 
         options = vars(args).copy()
         del options["command"]
-        print(json.dumps(strict_json(walk(**options)), indent=2))
+        if args.stream:
+            for key in ("stream", "gif", "preview_seconds"):
+                del options[key]
+            walk_stream(**options)  # prints its own JSON lines
+        else:
+            stream_only(options, ("idle",))
+            print(json.dumps(strict_json(walk(**options)), indent=2))
     elif args.command == "score":
         from walkdiff.score import score
 

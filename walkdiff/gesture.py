@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import inspect
 import itertools
+import json
 import math
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -147,6 +149,133 @@ def gesture(
         "files": [str(f) for f in files],
         "preview": preview,
     }
+
+
+def file_quaternions(model, poses: np.ndarray, joints: list[str]) -> np.ndarray:
+    """(F, len(joints), 4) local rotations of `joints` as unit quaternions (x, y, z, w) on the file's
+    skeleton and axes (what the BVH holds), for (F, D) features of `model`."""
+    import roma
+
+    motion = model.to_file(to_motion(model, poses))
+    index = [motion.skeleton.index(name) for name in joints]
+    return roma.rotmat_to_unitquat(torch.from_numpy(motion.rotations[:, index])).numpy()
+
+
+def emit(line: dict) -> None:
+    """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made."""
+    print(json.dumps(line, separators=(",", ":")), flush=True)
+
+
+def gesture_stream(
+    ckpt: str,
+    audio: str,
+    out: str,
+    seed: int = 0,
+    smooth: bool = False,
+    streams: int = 1,
+    rate: int | None = None,
+    idle: float = 2.0,
+    seconds: float | None = None,
+    overwrite: bool = False,
+) -> dict:
+    """`walkdiff gesture --stream`: poses as the audio arrives (raw s16le PCM on stdin, or a WAV that is
+    still being written), one JSON line per frame on stdout, the BVH(s) written at the end."""
+    from walkdiff.streaming import (
+        GestureBatch,
+        GestureStream,
+        PcmDecoder,
+        WavDecoder,
+        read_growing,
+        read_pipe,
+    )
+
+    if streams < 1:
+        raise WalkdiffError(f"--streams must be >= 1, got {streams}")
+    model = load_model(ckpt)
+    spec = model.spec
+    from_stdin = audio == "-"
+    if from_stdin:
+        rate = rate or spec.get("sample_rate")
+        if rate is None:
+            raise WalkdiffError(
+                "--rate: the checkpoint does not record the sample rate of its training audio; give the rate "
+                "of the PCM on stdin"
+            )
+        decoder, chunks = PcmDecoder("--audio -"), read_pipe(sys.stdin.buffer)
+    else:
+        if rate is not None:
+            raise WalkdiffError("--rate is for raw PCM on stdin (--audio -); a WAV file gives its own rate")
+        decoder, chunks = WavDecoder(audio, spec.get("sample_rate")), None
+    stem, out = ("stdin" if from_stdin else Path(audio).stem), output_folder(out)
+    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
+    targets = [out / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+    check_free(targets, overwrite)
+    chunks = chunks if from_stdin else read_growing(audio, idle)  # opened once the outputs are free
+
+    joints = list(spec["joints"])
+    batch, live, poses = GestureBatch(model, seed), [], [[] for _ in range(streams)]
+    limit = None if seconds is None else round(seconds * (rate or 0))
+    received, started = 0, time.perf_counter()
+
+    def send(arrived: float) -> None:
+        for k, stream in enumerate(live):
+            made = stream.take()
+            if not len(made):
+                continue
+            first = len(poses[k])
+            poses[k].extend(made)
+            quaternions = file_quaternions(model, made, joints).round(5)
+            latency = round(1000 * (time.perf_counter() - arrived), 1)
+            for i, q in enumerate(quaternions):
+                t = first + i
+                emit({
+                    "stream": k, "frame": t, "time": round(t / spec["fps"], 4),
+                    "audio_time": round(stream.waited[t], 4), "latency_ms": latency, "rotations": q.tolist(),
+                })  # fmt: skip
+
+    def start(rate: int) -> None:
+        live.extend(GestureStream(model, rate, batch=batch) for _ in range(streams))
+        emit({
+            "fps": spec["fps"], "rate": rate, "streams": streams, "joints": joints,
+            "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
+            "lookahead_s": round(live[0].features.needed(spec["lookahead"]) / rate, 4),
+        })  # fmt: skip
+
+    if from_stdin:
+        start(rate)
+    for data in chunks:
+        arrived = time.perf_counter()
+        samples = decoder.decode(data)
+        if not live and decoder.rate is not None:
+            rate = decoder.rate
+            limit = None if seconds is None else round(seconds * rate)
+            start(rate)
+        if limit is not None:
+            samples = samples[: max(limit - received, 0)]
+        received += len(samples)
+        for stream in live:
+            stream.feed(samples)
+        batch.run()
+        send(arrived)
+        if limit is not None and received >= limit:
+            break
+    else:
+        decoder.end()
+    for stream in live:
+        stream.close()
+    batch.run()
+    send(time.perf_counter())
+    clips = [np.stack(p) for p in poses]
+    if smooth:  # the BVH only: the live lines could not wait for the filter's 15 frames ahead
+        clips = [savgol(c, SMOOTH_WINDOW, SMOOTH_ORDER, axis=0) for c in clips]
+    for path, clip in zip(targets, clips):
+        write_bvh(path, model.to_file(to_motion(model, clip)))
+    summary = {
+        "done": True, "frames": len(clips[0]), "seconds": received / rate, "streams": streams,
+        "wall_s": round(time.perf_counter() - started, 3), "files": [str(t) for t in targets],
+    }  # fmt: skip
+    emit(summary)
+    return summary
 
 
 # ---------------------------------------------------------------- metrics

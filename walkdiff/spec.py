@@ -42,6 +42,7 @@ class SpeechSpec:
     audio_dim: int
     past: int  # audio frames before the current one in the control window
     lookahead: int  # audio frames after it
+    sample_rate: int | None = None  # of the takes' audio, where they share one (what a stream must send)
 
 
 @dataclass

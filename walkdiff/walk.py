@@ -187,6 +187,120 @@ def walk(
     return manifest
 
 
+def path_points(chunks, where: str):
+    """Path points (x, z) from JSON lines, `{"x": .., "z": ..}` each, as their bytes arrive: per chunk,
+    the list of points its complete lines give (blank lines skipped)."""
+    import json
+
+    pending, number = b"", 0
+    for data in chunks:
+        lines = (pending + data).split(b"\n")
+        pending, points = lines.pop(), []
+        for line in lines:
+            number += 1
+            if line.strip():
+                points.append(_point(line, where, number, json))
+        yield points
+    if pending.strip():
+        yield [_point(pending, where, number + 1, json)]
+
+
+def _point(line: bytes, where: str, number: int, json) -> list[float]:
+    try:
+        data = json.loads(line)
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        data = None
+    if (
+        not isinstance(data, dict)
+        or set(data) != {"x", "z"}
+        or not all(isinstance(v, int | float) and math.isfinite(v) for v in data.values())
+    ):
+        text = line.decode("utf-8", "replace").strip()[:60]
+        raise WalkdiffError(
+            f'expected a JSON object {{"x": metres, "z": metres}}, got {text!r}', path=where, line=number
+        )
+    return [float(data["x"]), float(data["z"])]
+
+
+def walk_stream(
+    ckpt: str,
+    style: str,
+    path: str,
+    out: str,
+    speed: float | None = None,
+    seed: int = 0,
+    idle: float = 2.0,
+    overwrite: bool = False,
+) -> dict:
+    """`walkdiff walk --stream`: walking along a path whose points arrive as JSON lines (stdin, or a file
+    still being written), one JSON line per frame on stdout as soon as the path ahead allows, the BVH at
+    the end."""
+    import sys
+
+    from walkdiff.gesture import emit
+    from walkdiff.streaming import WalkStream, read_growing, read_pipe
+
+    model = load_walker(ckpt)
+    styles = list(model.spec["styles"])
+    if style not in styles:
+        raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(styles)}")
+    unit, fps = model.profile.metres_per_unit, model.spec["fps"]
+    units_per_s = float(model.style_speed[styles.index(style)]) if speed is None else speed / unit
+    if not units_per_s > 0:
+        raise WalkdiffError("the checkpoint has no walking speed for this style; give --speed")
+    out = output_folder(out)
+    stem = f"{style}_{'stdin' if path == '-' else Path(path).stem}"
+    bvh = out / f"{stem}.bvh"
+    check_free([bvh], overwrite)
+    chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
+    stream = WalkStream(model, styles.index(style), units_per_s, seed)
+    names = model.profile.skeleton.names
+    emit({
+        "fps": fps, "joints": names, "units_per_metre": 1 / unit,
+        "root": "position of the first joint, in the BVH's units and axes",
+        "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
+    })  # fmt: skip
+    raws, started = [], time.perf_counter()
+
+    def send(arrived: float) -> None:
+        made = stream.take()
+        if not len(made):
+            return
+        first = len(raws)
+        raws.extend(made)
+        motion = model.to_file(to_motion(model, made, stream.roots[first]))
+        quaternions = _quaternions(motion.rotations).round(5)
+        latency = round(1000 * (time.perf_counter() - arrived), 1)
+        for i in range(len(made)):
+            emit({
+                "frame": first + i, "time": round((first + i) / fps, 4), "latency_ms": latency,
+                "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
+            })  # fmt: skip
+
+    for points in path_points(chunks, path):
+        arrived = time.perf_counter()
+        stream.feed(np.asarray(points).reshape(-1, 2) / unit)  # the model walks in its data's units
+        stream.batch.run()
+        send(arrived)
+    stream.close()
+    stream.batch.run()
+    send(time.perf_counter())
+    write_bvh(bvh, model.to_file(to_motion(model, np.stack(raws), stream.start)))
+    summary = {
+        "done": True, "frames": len(raws), "path_length_m": stream.path.length * unit,
+        "speed_m_s": units_per_s * unit, "wall_s": round(time.perf_counter() - started, 3),
+        "files": [str(bvh)],
+    }  # fmt: skip
+    emit(summary)
+    return summary
+
+
+def _quaternions(rotations: np.ndarray) -> np.ndarray:
+    import roma
+
+    return roma.rotmat_to_unitquat(torch.from_numpy(rotations)).numpy()
+
+
 # ---------------------------------------------------------------- benchmark
 
 

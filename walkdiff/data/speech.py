@@ -49,14 +49,19 @@ LOG_FLOOR = 1e-10  # added to the mel power before the log: digital silence stay
 # ---------------------------------------------------------------- audio
 
 
-def wav_seconds(path: str | Path) -> float:
-    """The duration of an audio file from its header, without reading its samples."""
+def wav_info(path: str | Path):
+    """An audio file's header (soundfile's info: frames, samplerate, ...), without reading its samples."""
     import soundfile
 
     try:
-        info = soundfile.info(str(path))
+        return soundfile.info(str(path))
     except (OSError, RuntimeError, soundfile.LibsndfileError) as error:
         raise WalkdiffError(f"cannot read the audio file ({error})", path=path) from None
+
+
+def wav_seconds(path: str | Path) -> float:
+    """The duration of an audio file from its header, without reading its samples."""
+    info = wav_info(path)
     return info.frames / info.samplerate
 
 
@@ -103,6 +108,84 @@ def log_mel(samples: np.ndarray, rate: int, fps: float, bands: int = 27) -> np.n
         y=samples, sr=target, n_fft=n_fft, hop_length=hop, win_length=2 * hop, n_mels=bands, power=2.0
     )
     return np.log(mel + LOG_FLOOR).T.astype(np.float32)
+
+
+def samples_per_frame(rate: int, fps: float, where: str) -> int:
+    """The mel hop of streamed audio: a rate must give whole samples per motion frame (no resampling,
+    which would not give the offline features piece by piece)."""
+    if not (rate / fps).is_integer():
+        raise WalkdiffError(
+            f"{where}: {rate} Hz is not a whole number of samples per frame at {fps:g} fps; streaming needs "
+            f"a rate that is (e.g. {_rate_for(rate, fps)} Hz): resample the audio"
+        )
+    return int(rate / fps)
+
+
+class LogMelStream:
+    """`log_mel` of audio that arrives in pieces: the same frames, each out as soon as its window is in.
+
+    Mel frame k is centred on sample k * hop with a 2-hop window, so it needs the samples before
+    (k + 1) * hop; `finish` adds the frames whose windows run past the end, zero-padded as `log_mel`
+    pads them (librosa's centred STFT). The window and mel filters are librosa's, made once: building
+    the filters is ~30 ms, which librosa's melspectrogram would pay on every call.
+    """
+
+    def __init__(self, rate: int, fps: float, bands: int = 27, where: str = "audio"):
+        import librosa
+
+        self.rate, self.bands = rate, bands
+        self.hop = samples_per_frame(rate, fps, where)
+        self.n_fft = 1 << math.ceil(math.log2(2 * self.hop))
+        window = librosa.filters.get_window("hann", 2 * self.hop, fftbins=True)
+        self.window = librosa.util.pad_center(window, size=self.n_fft).astype(np.float32)[:, None]
+        self.mel_basis = librosa.filters.mel(sr=rate, n_fft=self.n_fft, n_mels=bands)
+        # Frame k reads samples [k hop - n_fft/2, k hop + n_fft/2); its window is non-zero on the middle
+        # 2 hops of that span, so the last sample it needs is k hop - n_fft/2 + `self.reach` - 1.
+        self.reach = (self.n_fft - 2 * self.hop) // 2 + 2 * self.hop
+        self.buffer = np.zeros(0, dtype=np.float32)
+        self.offset = -(self.n_fft // 2)  # the sample index of buffer[0]: the first window starts before 0
+        self.received = 0  # samples pushed
+        self.frames = 0  # frames out
+        self.finished = False
+
+    def needed(self, frame: int) -> int:
+        """Samples that must have arrived before `frame` can be computed (before the end is known)."""
+        return frame * self.hop - self.n_fft // 2 + self.reach
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        """Mono float samples (any number) -> the (n, bands) frames they complete."""
+        if self.finished:
+            raise WalkdiffError("audio pushed after the end of the stream")
+        samples = np.asarray(samples, dtype=np.float32).reshape(-1)
+        if len(self.buffer) == 0 and self.received == 0:
+            self.buffer = np.zeros(-self.offset, dtype=np.float32)  # the centred STFT's zeros before sample 0
+        self.buffer = np.concatenate([self.buffer, samples])
+        self.received += len(samples)
+        end = self.frames
+        while self.needed(end) <= self.received:
+            end += 1
+        return self._frames(end)
+
+    def finish(self) -> np.ndarray:
+        """The frames left once the audio has ended: `log_mel` has 1 + samples // hop in all."""
+        self.finished = True
+        return self._frames(1 + self.received // self.hop)
+
+    def _frames(self, end: int) -> np.ndarray:
+        if end <= self.frames:
+            return np.zeros((0, self.bands), dtype=np.float32)
+        first = self.frames * self.hop - self.n_fft // 2 - self.offset  # buffer index of the first window
+        span = (end - 1 - self.frames) * self.hop + self.n_fft
+        segment = self.buffer[first : first + span]
+        # Samples not yet arrived (or past the end) fall where the window is zero, or are the end's padding.
+        segment = np.concatenate([segment, np.zeros(span - len(segment), dtype=np.float32)])
+        columns = np.lib.stride_tricks.sliding_window_view(segment, self.n_fft)[:: self.hop].T
+        power = np.abs(np.fft.rfft(self.window * columns, axis=0)) ** 2.0
+        mel = self.mel_basis @ power
+        self.frames = end
+        keep = self.frames * self.hop - self.n_fft // 2 - self.offset  # the next window's first sample
+        self.buffer, self.offset = self.buffer[keep:], self.offset + keep
+        return np.log(mel + LOG_FLOOR).T.astype(np.float32)
 
 
 def onset_times(samples: np.ndarray, rate: int) -> np.ndarray:
@@ -354,6 +437,12 @@ class SpeechDataModule(WindowLoaders):
         return [self.skeleton.index(n) for n in self.joint_names]
 
     @property
+    def sample_rate(self) -> int | None:
+        """The rate of the takes' audio where they all share one (streamed audio must come at it)."""
+        rates = {wav_info(wav).samplerate for _, wav in self.pairs}
+        return rates.pop() if len(rates) == 1 else None
+
+    @property
     def spec(self) -> SpeechSpec:
         h = self.hparams
         names = self.joint_names
@@ -368,6 +457,7 @@ class SpeechDataModule(WindowLoaders):
             audio_dim=h.bands,
             past=h.past,
             lookahead=h.lookahead,
+            sample_rate=self.sample_rate,
         )
 
     def split_frames(self, take: SpeechTake, split: str) -> tuple[int, int]:

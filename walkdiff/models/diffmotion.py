@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -124,11 +125,59 @@ class ATEncoder(nn.Module):
         return self.lstm(torch.cat([previous, audio], dim=-1), state)
 
 
+@dataclass
+class FrameStreams:
+    """What carries from one frame to the next for B streams of an `AutoregressiveDiffusion`.
+
+    All streams advance together in offline generation; a streaming batch advances the ones with a frame
+    ready (`select` and `update` gather and scatter their rows).
+    """
+
+    previous: torch.Tensor  # (B, 1, D) each stream's last pose, normalised (zeros, the mean pose, at a start)
+    state: tuple[torch.Tensor, torch.Tensor] | None  # the LSTM's (h, c), (layers, B, hidden); None: all zero
+    tables: tuple  # the sampler's tables, computed once
+
+    @property
+    def rows(self) -> int:
+        return self.previous.shape[0]
+
+    def add(self, rows: int) -> None:
+        """`rows` more streams at their start (streams may join a running batch)."""
+        self.previous = torch.cat([self.previous, self.previous.new_zeros(rows, *self.previous.shape[1:])])
+        if self.state is not None:
+            self.state = tuple(
+                torch.cat([s, s.new_zeros(s.shape[0], rows, s.shape[2])], 1) for s in self.state
+            )
+
+    def select(
+        self, rows: torch.Tensor | None, lstm: nn.LSTM
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
+        """The previous poses and LSTM state of `rows` (None: all, as they are)."""
+        if rows is None:
+            return self.previous, self.state
+        if self.state is None:
+            zeros = self.previous.new_zeros(lstm.num_layers, self.rows, lstm.hidden_size)
+            self.state = (zeros, zeros.clone())
+        return self.previous[rows], (self.state[0][:, rows], self.state[1][:, rows])
+
+    def update(
+        self, rows: torch.Tensor | None, previous: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
+    ) -> None:
+        """The streams `rows` (None: all) a frame on."""
+        if rows is None:
+            self.previous, self.state = previous, state
+            return
+        self.previous[rows] = previous
+        self.state[0][:, rows] = state[0]
+        self.state[1][:, rows] = state[1]
+
+
 class AutoregressiveDiffusion(MotionModule):
     """DiffMotion's machinery, whatever steers it: the AT-Encoder and the per-frame eps network.
 
     A subclass turns its control signal into one encoded vector per frame (B, L, control_hidden), and
-    calls `sequence_loss` in its `loss` and `sample_frame` frame after frame in generation.
+    calls `sequence_loss` in its `loss`; generation and streaming start streams (`start_streams`) and
+    `advance` them a frame at a time from each frame's encoded control.
     """
 
     sequence_key = "features"  # the batch entry holding the pose sequences
@@ -186,6 +235,30 @@ class AutoregressiveDiffusion(MotionModule):
         return run_steps(
             model_fn, self.diffusion, (h.shape[0], self.spec["feature_dim"]), steps, generator=generator
         )
+
+    # ------------------------------------------------------------ frame by frame (generation, streaming)
+
+    @torch.inference_mode()
+    def start_streams(self, rows: int) -> FrameStreams:
+        """`rows` streams at their start: zero LSTM state, the mean pose before them, the sampler's tables."""
+        previous = torch.zeros(rows, 1, self.spec["feature_dim"], device=self.device)
+        return FrameStreams(previous, None, self.sampling_tables())
+
+    @torch.inference_mode()
+    def advance(
+        self,
+        streams: FrameStreams,
+        control: torch.Tensor,
+        generator: torch.Generator | None,
+        rows: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """One frame for the streams `rows` (default: all) from their encoded controls (R, control_hidden):
+        their poses (R, D), normalised; those streams' state moves on by the frame."""
+        previous, state = streams.select(rows, self.encoder.lstm)
+        h, state = self.encoder(previous, control[:, None], state)
+        x = self.sample_frame(h[:, 0], streams.tables, generator)
+        streams.update(rows, x[:, None], state)
+        return x
 
     def loss(self, batch: dict) -> torch.Tensor:
         raise NotImplementedError
@@ -303,14 +376,10 @@ class DiffMotion(AutoregressiveDiffusion):
         padded = torch.cat([audio[:, :1].expand(-1, past, -1), audio, audio[:, -1:].expand(-1, ahead, -1)], 1)
         audio_emb = self.encoder.audio(self.control_windows(padded))
         rows, frames, dim = audio.shape[0], audio.shape[1], self.spec["feature_dim"]
-        tables = self.sampling_tables()
+        streams = self.start_streams(rows)
         poses = audio.new_zeros(rows, frames, dim)
-        previous, state = audio.new_zeros(rows, 1, dim), None
         for f in range(frames):
-            h, state = self.encoder(previous, audio_emb[:, f : f + 1], state)
-            x = self.sample_frame(h[:, 0], tables, generator)
-            poses[:, f] = x
-            previous = x.unsqueeze(1)
+            poses[:, f] = self.advance(streams, audio_emb[:, f], generator)
             if on_frame is not None:
                 on_frame(f + 1, frames)
         return self.normalizer.denormalize(poses)

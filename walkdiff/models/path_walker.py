@@ -53,6 +53,32 @@ def advance_root(
     return position, heading + raw[:, layout.heading_vel.start]
 
 
+def path_start(path: Polyline) -> tuple[np.ndarray, float]:
+    """Where a walk along `path` starts: its first point, facing along its first segment."""
+    forward = path.direction(0.0)
+    return path.points[0].copy(), float(np.arctan2(forward[0], forward[1]))
+
+
+def path_control(
+    path: Polyline,
+    position: np.ndarray,
+    heading: np.ndarray,
+    progress: np.ndarray,
+    pace: np.ndarray,
+    reach: float,
+) -> tuple[torch.Tensor, np.ndarray]:
+    """The raw controls (B, 2K) of walkers at `position` (B, 2) facing `heading` (B,), and how far along
+    the path they are (B,): their closest path point within `reach` of `progress`, a frame ago's.
+
+    The path is read no farther than progress + reach + pace[:, -1] (arc length): a path still growing
+    gives the same controls as the whole path once it is longer than that (`walkdiff.streaming`).
+    """
+    progress, _ = path.project(position, near=progress, reach=reach)
+    targets = torch.from_numpy(path.at(progress[:, None] + pace)).float()
+    control = local_offsets(targets, torch.from_numpy(position).float(), torch.from_numpy(heading).float())
+    return control, progress
+
+
 class PathWalker(AutoregressiveDiffusion):
     def __init__(
         self,
@@ -108,6 +134,10 @@ class PathWalker(AutoregressiveDiffusion):
         """Raw controls (B, F, 2K) and style ids (B,) -> encoder inputs (B, F, control_hidden)."""
         return self.encoder.audio(self.control_normalizer.normalize(control)) + self.style(style)[:, None]
 
+    def pace(self, speed: torch.Tensor) -> np.ndarray:
+        """(B, K) arc lengths of the control's points ahead of a walker at `speed` (B,) units/s."""
+        return speed.double().cpu().numpy()[:, None] * np.asarray(self.ahead) / self.spec["fps"]
+
     def setup(self, stage: str) -> None:
         super().setup(stage)
         datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
@@ -150,30 +180,22 @@ class PathWalker(AutoregressiveDiffusion):
 
         Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
         """
-        rows, dim, fps = style.shape[0], self.spec["feature_dim"], self.spec["fps"]
-        start = path.points[0]
-        forward = path.direction(0.0)
-        start_heading = float(np.arctan2(forward[0], forward[1]))
+        rows, dim = style.shape[0], self.spec["feature_dim"]
+        start, start_heading = path_start(path)
         position = np.tile(start, (rows, 1))
         heading = np.full(rows, start_heading)
         progress = np.zeros(rows)
-        pace = speed.double().cpu().numpy()[:, None] * np.asarray(self.ahead) / fps  # (B, K)
+        pace = self.pace(speed)
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
-        tables = self.sampling_tables()
+        streams = self.start_streams(rows)
         poses = torch.zeros(rows, frames, dim, device=self.device)
-        previous, state = torch.zeros(rows, 1, dim, device=self.device), None
         style = style.to(self.device)
         for f in range(frames):
-            # Where the walker is along the path: its closest point, near where it was a frame ago.
-            progress, _ = path.project(position, near=progress, reach=reach)
-            targets = torch.from_numpy(path.at(progress[:, None] + pace)).float()
-            control = local_offsets(
-                targets, torch.from_numpy(position).float(), torch.from_numpy(heading).float()
-            ).to(self.device)
-            h, state = self.encoder(previous, self.encode_control(control[:, None], style), state)
-            x = self.sample_frame(h[:, 0], tables, generator)
+            control, progress = path_control(path, position, heading, progress, pace, reach)
+            x = self.advance(
+                streams, self.encode_control(control.to(self.device)[:, None], style)[:, 0], generator
+            )
             poses[:, f] = x
-            previous = x.unsqueeze(1)
             raw = self.normalizer.denormalize(x).double().cpu().numpy()
             position, heading = advance_root(position, heading, raw, self.layout)
             if on_frame is not None:

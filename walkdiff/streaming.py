@@ -1,0 +1,392 @@
+"""Streaming: gestures from speech that is still arriving, walking along a path that is still being drawn.
+
+A stream owns what its control needs (the audio features so far, or the path so far) and says when its
+next frame is ready; a batch of streams of one model carries their LSTM state and previous poses
+(`FrameStreams`) and, per frame, runs one forward for all the streams that have a frame ready:
+
+    batch = GestureBatch(model, seed=0)
+    a, b = GestureStream(model, batch=batch), GestureStream(model, batch=batch)
+    a.feed(pcm_a); b.feed(pcm_b); batch.run()      # every frame that became ready, batched
+    poses_a, poses_b = a.take(), b.take()
+
+or, for one stream, `GestureStream(model, rate, seed).push(pcm)` -> the poses made. A gesture frame t
+needs audio frames up to t + lookahead, and mel frame k needs the samples before (k + 1) * hop (its
+window is centred on k * hop and two hops long); `finish` pads the end as the offline path does. A
+walker's frame t needs the path up to where its control reads it (`WalkStream.ready`).
+
+Reproducibility: a single stream with seed s makes the poses `walkdiff gesture --seed s` (or `walk`)
+makes from the whole input, up to float rounding of the audio encoding. Streams of a batch share one
+random generator, drawn in one go for the streams advanced together: streams that advance in lockstep
+(the same audio at the same time, as `--streams N`) equal the offline batch, to the same rounding; streams at
+different points of their input are valid samples whose noise depends on which frames were batched.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from walkdiff.data.speech import LogMelStream
+from walkdiff.errors import WalkdiffError
+from walkdiff.models.path_walker import advance_root, path_control, path_start
+from walkdiff.motion.path import Polyline
+
+
+class StreamBatch:
+    """Streams of one model, advanced together a frame at a time; subclasses encode their controls."""
+
+    def __init__(self, model, seed: int = 0):
+        self.model = model
+        self.generator = torch.Generator(device=model.device).manual_seed(seed)
+        self.frames = model.start_streams(0)
+        self.streams: list = []
+
+    def join(self, stream) -> int:
+        """A new stream at its start; its row."""
+        with torch.inference_mode():
+            self.frames.add(1)
+        self.streams.append(stream)
+        return len(self.streams) - 1
+
+    def encode(self, ready: list) -> torch.Tensor:
+        """The encoded controls (R, control_hidden) of the streams `ready` for their next frame."""
+        raise NotImplementedError
+
+    def step(self) -> int:
+        """One frame for every stream with one ready, in one forward; how many streams advanced."""
+        ready = [s for s in self.streams if s.ready()]
+        if not ready:
+            return 0
+        every = len(ready) == len(self.streams)
+        rows = None if every else torch.tensor([s.row for s in ready], device=self.model.device)
+        with torch.inference_mode():
+            x = self.model.advance(self.frames, self.encode(ready), self.generator, rows)
+            poses = self.model.normalizer.denormalize(x).cpu().numpy()
+        for stream, pose in zip(ready, poses):
+            stream.receive(pose)
+        return len(ready)
+
+    def run(self) -> int:
+        """Every frame that is ready, a frame at a time (streams behind others catch up); frames made."""
+        made = 0
+        while advanced := self.step():
+            made += advanced
+        return made
+
+
+class GestureBatch(StreamBatch):
+    def encode(self, ready: list) -> torch.Tensor:
+        windows = torch.from_numpy(np.stack([s.control() for s in ready])).to(self.model.device)
+        return self.model.encoder.audio(windows)
+
+
+class GestureStream:
+    """DiffMotion gestures from mono audio pushed in pieces of any size (float samples in [-1, 1]).
+
+    `rate` defaults to the sample rate of the model's training audio (recorded in checkpoints since
+    streaming came); it must be a whole number of samples per motion frame.
+    """
+
+    def __init__(self, model, rate: int | None = None, seed: int = 0, batch: GestureBatch | None = None):
+        spec = model.spec
+        rate = rate or spec.get("sample_rate")
+        if rate is None:
+            raise WalkdiffError("the checkpoint does not record its audio's sample rate: give the rate")
+        self.rate, self.fps = int(rate), spec["fps"]
+        self.past, self.lookahead, self.window = spec["past"], spec["lookahead"], model.window
+        self.features = LogMelStream(self.rate, self.fps, spec["audio_dim"], where=f"{self.rate} Hz audio")
+        normalizer = model.audio_normalizer
+        self.mean, self.std = normalizer.mean.cpu().numpy(), normalizer.std.cpu().numpy()
+        self.padded: list[np.ndarray] = []  # normalised audio frames from `first` - past on, edges repeated
+        self.first = 0  # the frame of padded[0] is first - past (older ones are dropped)
+        self.frame = 0  # the next frame to make
+        self.total: int | None = None  # frames in all, once the audio has ended
+        self.made: list[np.ndarray] = []
+        self.waited: list[float] = []  # per frame made: the audio time (s) it waited for
+        self.batch = batch or GestureBatch(model, seed)
+        self.row = self.batch.join(self)
+
+    def feed(self, samples: np.ndarray) -> None:
+        """Audio, without making frames (`GestureBatch.run` makes them for all streams at once)."""
+        self._append(self.features.push(samples))
+
+    def close(self) -> None:
+        """The audio has ended: the last frames are made with the last audio frame repeated, as offline."""
+        if self.features.received == 0:
+            raise WalkdiffError("no audio arrived: expected at least one sample")
+        self._append(self.features.finish())
+        self.total = self.features.frames
+        self.padded += [self.padded[-1]] * self.lookahead
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        """Audio in -> the poses (n, D), feature units, that became computable."""
+        self.feed(samples)
+        self.batch.run()
+        return self.take()
+
+    def finish(self) -> np.ndarray:
+        """The end of the audio -> the remaining poses."""
+        self.close()
+        self.batch.run()
+        return self.take()
+
+    def take(self) -> np.ndarray:
+        """The poses made since the last take, (n, D)."""
+        made, self.made = self.made, []
+        return np.stack(made) if made else np.zeros((0, self.batch.model.spec["feature_dim"]), np.float32)
+
+    def ready(self) -> bool:
+        if self.total is not None:
+            return self.frame < self.total
+        return len(self.padded) >= self.frame - self.first + self.window
+
+    def control(self) -> np.ndarray:
+        """The flattened control window (window * M,) of the next frame, as `DiffMotion.control_windows`."""
+        start = self.frame - self.first
+        return np.concatenate(self.padded[start : start + self.window])
+
+    def receive(self, pose: np.ndarray) -> None:
+        needed = min(self.features.needed(self.frame + self.lookahead), self.features.received)
+        self.waited.append(needed / self.rate)
+        self.made.append(pose)
+        self.frame += 1
+        drop = self.frame - self.first - 1
+        if drop > 256:  # keep the list short on long streams
+            del self.padded[:drop]
+            self.first += drop
+
+    def _append(self, mel: np.ndarray) -> None:
+        if len(mel) == 0:
+            return
+        normalized = ((mel - self.mean) / self.std).astype(np.float32)
+        if not self.padded:
+            self.padded = [normalized[0]] * self.past
+        self.padded.extend(normalized)
+
+
+class WalkBatch(StreamBatch):
+    def encode(self, ready: list) -> torch.Tensor:
+        control = torch.cat([s.control() for s in ready]).to(self.model.device)
+        style = torch.tensor([s.style for s in ready], device=self.model.device)
+        return self.model.encode_control(control[:, None], style)[:, 0]
+
+
+class WalkStream:
+    """A PathWalker walking a path whose points (x, z in the model's units) arrive over time.
+
+    A frame is made once the path reaches past where its control reads it: the walker's closest path
+    point is searched within `reach` of the last one, and the control's points lie up to pace[-1]
+    beyond it, so a path longer than progress + reach + pace[-1] gives the controls the whole path
+    gives. The walk lasts, as `walkdiff walk`, the frames it takes to cover the path at `speed`.
+    """
+
+    def __init__(self, model, style: int, speed: float, seed: int = 0, batch: WalkBatch | None = None):
+        if not 0 < speed < math.inf:
+            raise WalkdiffError(f"the walking speed must be a positive number, got {speed}")
+        self.model, self.style, self.speed = model, int(style), float(speed)
+        self.pace = model.pace(torch.tensor([speed]))
+        self.reach = 2 * float(self.pace[:, -1].max()) + 1.0  # as PathWalker.generate
+        self.points: list[np.ndarray] = []
+        self.path: Polyline | None = None
+        self.closed = False
+        self.frame = 0
+        self.start: tuple[np.ndarray, float] | None = None
+        self.position = self.heading = self.progress = None
+        self.made: list[np.ndarray] = []
+        self.roots: list[tuple[np.ndarray, float]] = []  # per frame made: root (x, z) and heading there
+        self.batch = batch or WalkBatch(model, seed)
+        self.row = self.batch.join(self)
+
+    def feed(self, points) -> None:
+        """More path points (n, 2), appended to the path."""
+        if self.closed:
+            raise WalkdiffError("path points arrived after the end of the path")
+        self.points.extend(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        if len(self.points) >= 2:
+            self.path = Polyline.of(self.points)
+        if self.start is None and self.path is not None and self.path.length > 0:
+            self.start = path_start(self.path)
+            self.position = self.start[0][None].copy()
+            self.heading = np.array([self.start[1]])
+            self.progress = np.zeros(1)
+
+    def close(self) -> None:
+        if self.start is None:
+            raise WalkdiffError("the path has no length: expected at least two distinct points")
+        self.closed = True
+
+    def push(self, points) -> np.ndarray:
+        """Path points in -> the frames (n, D) of raw features that became computable."""
+        self.feed(points)
+        self.batch.run()
+        return self.take()
+
+    def finish(self) -> np.ndarray:
+        self.close()
+        self.batch.run()
+        return self.take()
+
+    def take(self) -> np.ndarray:
+        made, self.made = self.made, []
+        return np.stack(made) if made else np.zeros((0, self.model.spec["feature_dim"]), np.float32)
+
+    @property
+    def frames(self) -> int:
+        """Frames to walk the path known so far (all of it once closed)."""
+        from walkdiff.walk import frames_for
+
+        return frames_for(self.path, self.speed, self.model.spec["fps"])
+
+    def ready(self) -> bool:
+        if self.start is None or self.frame >= self.frames:
+            return False
+        return self.closed or self.path.length > self.progress[0] + self.reach + self.pace[0, -1]
+
+    def control(self) -> torch.Tensor:
+        control, self.progress = path_control(
+            self.path, self.position, self.heading, self.progress, self.pace, self.reach
+        )
+        return control
+
+    def receive(self, pose: np.ndarray) -> None:
+        self.roots.append((self.position[0].copy(), float(self.heading[0])))
+        self.made.append(pose)
+        raw = pose.astype(np.float64)[None]
+        self.position, self.heading = advance_root(self.position, self.heading, raw, self.model.layout)
+        self.frame += 1
+
+
+# ---------------------------------------------------------------- inputs that arrive over time
+
+
+def read_pipe(stream) -> Iterator[bytes]:
+    """The bytes of a pipe (standard input's binary buffer) as they come, until end of file."""
+    read = getattr(stream, "read1", stream.read)  # read1: what is there, without waiting for a full block
+    while data := read(1 << 14):
+        yield data
+
+
+def read_growing(path: str | Path, idle: float, poll: float = 0.02) -> Iterator[bytes]:
+    """The bytes of a file that is still being written, until it has not grown for `idle` seconds."""
+    path = Path(path)
+    if not path.is_file():  # now, not at the first read
+        raise WalkdiffError("file not found", path=path)
+    return _follow(path, idle, poll)
+
+
+def _follow(path: Path, idle: float, poll: float) -> Iterator[bytes]:
+    with path.open("rb") as f:
+        quiet_since = time.monotonic()
+        while True:
+            data = f.read(1 << 16)
+            if data:
+                quiet_since = time.monotonic()
+                yield data
+            elif time.monotonic() - quiet_since >= idle:
+                return
+            else:
+                time.sleep(poll)
+
+
+class PcmDecoder:
+    """Raw s16le PCM bytes (mono) -> float samples in [-1, 1), as soundfile reads 16-bit WAVs."""
+
+    def __init__(self, where: str):
+        self.where, self.left, self.bytes = where, b"", 0
+
+    def decode(self, data: bytes) -> np.ndarray:
+        data = self.left + data
+        self.bytes += len(data) - len(self.left)
+        whole = len(data) - len(data) % 2
+        self.left = data[whole:]
+        return np.frombuffer(data[:whole], dtype="<i2").astype(np.float32) / np.float32(32768)
+
+    def end(self) -> None:
+        if self.left:
+            raise WalkdiffError(
+                f"{self.where}: {self.bytes} bytes, an odd number: expected s16le samples (2 bytes each)"
+            )
+
+
+class WavDecoder:
+    """A WAV file's bytes as they arrive -> float mono samples (channels averaged, as `read_wav`).
+
+    The header is read from the first bytes; its sizes are not trusted (a file still being written
+    has placeholders there). 16-bit PCM and 32-bit float samples.
+    """
+
+    def __init__(self, where: str, rate: int | None):
+        self.where, self.expected_rate = where, rate
+        self.head = b""
+        self.rate: int | None = None
+        self.channels = self.width = 0
+        self.left = b""
+        self.floating = False
+
+    def decode(self, data: bytes) -> np.ndarray:
+        if self.rate is None:
+            self.head += data
+            data = self._header()
+            if self.rate is None:
+                return np.zeros(0, np.float32)
+        data = self.left + data
+        frame = self.channels * self.width
+        whole = len(data) - len(data) % frame
+        self.left = data[whole:]
+        kind = "<f4" if self.floating else "<i2"
+        samples = np.frombuffer(data[:whole], dtype=kind).reshape(-1, self.channels).astype(np.float32)
+        if not self.floating:
+            samples /= np.float32(32768)
+        elif not np.isfinite(samples).all():
+            raise WalkdiffError(
+                f"{self.where}: samples that are not finite numbers; expected audio in [-1, 1]"
+            )
+        return samples.mean(axis=1)
+
+    def end(self) -> None:
+        if self.rate is None:
+            raise WalkdiffError(f"{self.where}: no WAV header with a 'data' chunk arrived")
+
+    def _header(self) -> bytes:
+        """Parse the RIFF header once its 'data' chunk has begun; the bytes after it."""
+        head = self.head
+        if len(head) >= 12 and (head[:4] != b"RIFF" or head[8:12] != b"WAVE"):
+            raise WalkdiffError(f"{self.where}: not a WAV file (expected a RIFF/WAVE header)")
+        at, fmt = 12, None
+        while at + 8 <= len(head):
+            name, size = head[at : at + 4], struct.unpack("<I", head[at + 4 : at + 8])[0]
+            if name == b"data":
+                if fmt is None:
+                    raise WalkdiffError(f"{self.where}: the WAV's 'data' chunk comes before its 'fmt ' chunk")
+                self._format(fmt)
+                return head[at + 8 :]
+            if at + 8 + size > len(head):
+                return b""
+            if name == b"fmt ":
+                fmt = head[at + 8 : at + 8 + size]
+            at += 8 + size + size % 2
+        if len(head) > 1 << 20:
+            raise WalkdiffError(f"{self.where}: no 'data' chunk in the first MB of the WAV")
+        return b""
+
+    def _format(self, fmt: bytes) -> None:
+        tag, channels, rate, _, _, bits = struct.unpack("<HHIIHH", fmt[:16])
+        if tag == 0xFFFE and len(fmt) >= 26:  # WAVE_FORMAT_EXTENSIBLE: the real tag opens the subformat
+            tag = struct.unpack("<H", fmt[24:26])[0]
+        if (tag, bits) not in ((1, 16), (3, 32)) or channels < 1:
+            raise WalkdiffError(
+                f"{self.where}: a WAV of format {tag} with {bits}-bit samples; expected 16-bit PCM or "
+                "32-bit float"
+            )
+        if self.expected_rate is not None and rate != self.expected_rate:
+            raise WalkdiffError(
+                f"{self.where}: {rate} Hz; the model was trained on {self.expected_rate} Hz audio: "
+                f"resample it (e.g. ffmpeg -ar {self.expected_rate})"
+            )
+        self.rate, self.channels, self.width, self.floating = rate, channels, bits // 8, tag == 3
