@@ -18,6 +18,11 @@ SAMPLER_HELP = (
     "solved to second order, closer to DDPM at 10 steps for the same cost"
 )
 
+FRAME_SAMPLER_HELP = (
+    "per frame: ddpm, ancestral over all N trained steps (default); ddim over --steps of them (--eta its "
+    "noise); dpmpp, DPM-Solver++(2M) over --steps (see the README's speed and quality table)"
+)
+
 LIGHTNING_VERBS = ("fit", "validate", "test")
 PREVIEW_HELP = "seconds of each clip the GIF preview shows, from its start (default 20)"
 PROFILE_HELP = (
@@ -344,11 +349,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--keep-trajectory", action="store_true", help="keep the source's root path exactly")
 
+    def frame_sampler_options(p: argparse.ArgumentParser) -> None:
+        """Options of the per-frame sampler of DiffMotion and the path walker."""
+        p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=FRAME_SAMPLER_HELP)
+        p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+        p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+
     p = sub.add_parser("gesture", help="speech-driven gestures from a WAV with DiffMotion: BVH + GIF")
     p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
     p.add_argument("--audio", required=True, help="speech WAV (any rate; resampled as needed)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
+    frame_sampler_options(p)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
@@ -363,6 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--speed", type=number(0, above=True), default=None, help="m/s (default: the file's, or the style's)"
     )
     p.add_argument("--seed", type=count(0), default=0)
+    frame_sampler_options(p)
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -377,6 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="folder for report.json and per-take BVH/GIF")
     p.add_argument("--samples", type=count(1), default=5, help="samples of each take's audio (default 5)")
     p.add_argument("--seed", type=count(0), default=0)
+    frame_sampler_options(p)
     p.add_argument(
         "--clip-seconds", type=number(0, above=True), default=2.0, help="diversity clip length (default 2 s)"
     )
@@ -625,7 +639,10 @@ def run_command(args: argparse.Namespace) -> int:
         if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
             from walkdiff.gesture import evaluate_gesture
 
-            evaluate_gesture(args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root)
+            evaluate_gesture(
+                args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root,
+                sampler=args.sampler, steps=args.steps,
+            )  # fmt: skip
             print(f"wrote {args.out}/report.json")
             return 0
         if args.evaluator is None:

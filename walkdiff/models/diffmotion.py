@@ -306,10 +306,9 @@ class AutoregressiveDiffusion(MotionModule):
         sampler's steps (default ancestral DDPM over all N), their step embeddings, and with `fused`
         the eps network laid out for fewer operations (`FusedEps`; the same numbers as the module)."""
         steps = (sampler or SamplerChoice()).table(self.diffusion)
-        embeddings = self.eps_net.embed_steps(torch.tensor(steps.timesteps, device=self.device))
-        return FrameTables(
-            steps, embeddings, FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
-        )
+        embeddings = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
+        fused = FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
+        return FrameTables(steps, embeddings, fused)
 
     def sample_frame(
         self, h: torch.Tensor, tables: FrameTables, generator: torch.Generator | None
@@ -318,10 +317,9 @@ class AutoregressiveDiffusion(MotionModule):
         if tables.fused is not None:
             return tables.sample_fused(h, generator)
         cond = self.eps_net.condition(h)
-        by_step = dict(zip(tables.steps.timesteps, tables.embeddings.unbind(1), strict=True))
 
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-            return self.eps_net(x, by_step[int(t[0])].unsqueeze(1), cond)
+            return self.eps_net(x, tables.embeddings[:, t], cond)
 
         return run_steps(
             model_fn,
@@ -464,14 +462,14 @@ class DiffMotion(AutoregressiveDiffusion):
 
 
 class FrameTables:
-    """A generation's per-frame sampling constants: the sampler's steps, their step embeddings
-    (layers, K, 1, 2 C), and the fused network (None: the plain module and `run_steps`)."""
+    """A generation's per-frame sampling constants: the sampler's steps, the embeddings of all trained
+    steps (layers, N, 1, 2 C), and the fused network (None: the plain module and `run_steps`)."""
 
     def __init__(self, steps: SamplerSteps, embeddings: torch.Tensor, fused: FusedEps | None):
         self.steps, self.embeddings, self.fused = steps, embeddings, fused
         if fused is not None:
             # Per step, the output layer times the update's weights: x <- a x + b out, x0 = px x + po out.
-            self.step_bias = list(embeddings.unbind(1))
+            self.step_bias = [embeddings[:, t] for t in steps.timesteps]
             self.update = [fused.output * b for b in steps.out_coef]
             self.estimate = [fused.output * po for po in steps.x0_out_coef] if any(steps.prev_coef) else None
 

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.motion.path import Polyline
@@ -144,9 +145,12 @@ class PathWalker(AutoregressiveDiffusion):
         frames: int,
         generator: torch.Generator | None = None,
         on_frame: Callable[[int, int], None] | None = None,
+        sampler: SamplerChoice | None = None,
+        fused: bool = True,
     ) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames;
-        `on_frame(done, total)` is called after every frame (a progress bar).
+        `on_frame(done, total)` is called after every frame (a progress bar). `sampler` and `fused` as
+        in `DiffMotion.generate`.
 
         Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
         """
@@ -159,7 +163,7 @@ class PathWalker(AutoregressiveDiffusion):
         progress = np.zeros(rows)
         pace = speed.double().cpu().numpy()[:, None] * np.asarray(self.ahead) / fps  # (B, K)
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
-        tables = self.sampling_tables()
+        tables = self.sampling_tables(sampler, fused)
         poses = torch.zeros(rows, frames, dim, device=self.device)
         previous, state = torch.zeros(rows, 1, dim, device=self.device), None
         style = style.to(self.device)
