@@ -644,18 +644,28 @@ def bench_gesture(
         "fps": fps,
         "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
     }
-    for choice, fused in settings.values():  # warm-up
-        model.generate(audio[:3], sampler=choice, fused=fused)
-    runs = [
-        lambda choice=choice, fused=fused: model.generate(audio, sampler=choice, fused=fused)
-        for choice, fused in settings.values()
-    ]
-    one = _interleaved_medians(runs, repeats)
-    result["seconds_per_frame_1_stream"] = {name: round(t / frames, 5) for name, t in zip(settings, one)}
-    result["lstm_step_ms"] = _lstm_step_ms(model, repeats)
-    batched = _interleaved_medians(
-        [lambda s=s: model.generate(audio, streams=s, sampler=few) for s in streams], max(1, repeats // 2)
+    batch_rounds = max(1, repeats // 2)
+    bar = progress(
+        total=len(settings) * repeats + len(streams) * batch_rounds, desc="bench gesture", unit="run"
     )
+
+    def counted(fn):  # a timed run that then advances the bar (microseconds, inside the timing)
+        return lambda: (fn(), bar.update(1))
+
+    with bar:
+        for choice, fused in settings.values():  # warm-up
+            model.generate(audio[:3], sampler=choice, fused=fused)
+        runs = [
+            counted(lambda choice=choice, fused=fused: model.generate(audio, sampler=choice, fused=fused))
+            for choice, fused in settings.values()
+        ]
+        one = _interleaved_medians(runs, repeats)
+        result["seconds_per_frame_1_stream"] = {name: round(t / frames, 5) for name, t in zip(settings, one)}
+        result["lstm_step_ms"] = _lstm_step_ms(model, repeats)
+        batched = _interleaved_medians(
+            [counted(lambda s=s: model.generate(audio, streams=s, sampler=few)) for s in streams],
+            batch_rounds,
+        )
     result["sampler_batched"] = few.label(model.diffusion)
     result["frames_per_second_batched"] = {str(s): round(s * frames / t, 1) for s, t in zip(streams, batched)}
     realtime = [s for s, t in zip(streams, batched) if t / frames <= 1 / fps]
