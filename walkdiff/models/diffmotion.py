@@ -104,6 +104,12 @@ class EpsNetwork(nn.Module):
         return torch.addmm(self.output.bias, skip, self.output.weight.t()).view(b, d)
 
 
+def _read_gated(weight: torch.Tensor) -> torch.Tensor:
+    """Weights (C, out) that read a gated output g = s_g (2 s_v - 1), as weights (2 C, out) that read
+    [s_g, s_g s_v]: g W = [s_g, s_g s_v] [-W; 2 W]."""
+    return torch.cat([-weight, 2 * weight])
+
+
 class FusedEps:
     """An `EpsNetwork`'s calls and the sampler's update with fewer, larger operations: the same arithmetic,
     built from the trained weights at generation time (nothing of it is trained or saved).
@@ -116,28 +122,37 @@ class FusedEps:
       buffer (views made once per frame), not a pad and two slices per call;
     - the residual update writes in place into the buffer; the gated outputs go straight into their
       columns of the skip layer's input, with no concatenation;
+    - tanh(v) = 2 sigmoid(2 v) - 1 (torch's CPU tanh is ~10-20x slower than its sigmoid): one sigmoid
+      gives s_g and s_v, the layer keeps [s_g, s_g s_v], and the gated output s_g (2 s_v - 1) is folded
+      into the weights that read it ([-W; 2 W]);
     - the gap rows stay exactly zero: their gate bias is -inf (sigmoid 0, so the gated output is 0) and
       their other biases 0;
     - the output layer and the sampler step are one addmm: x <- a x + b (s W + c) is
       addmm(x, [s, 1], b [W; c], beta=a), with the skip layer's output s given a column of ones.
 
-    Measured against TorchScript (deprecated in torch 2.13) and ONNX Runtime in the README
-    (`walkdiff bench gesture`); this kept one code path for CPU and GPU and no export step.
+    Kept over TorchScript (deprecated in torch 2.13) and ONNX Runtime (1.3-2x faster in a side
+    measurement, but an export of tens of seconds at each generation and a runtime and GPU build of its
+    own): plain torch, one code path for CPU and GPU, nothing to compile (README, fast sampling).
     """
 
     def __init__(self, net: EpsNetwork, dim: int):
         self.net, self.dim = net, dim
-        self.channels, self.layers, self.dilations = net.channels, net.layers, net.dilations
-        self.gap = max(net.dilations)
-        self.input_weight = net.input.weight.detach().t()  # (1, C)
-        self.dilated = [w.detach() for w in net.dilated]
-        self.residual = [w.detach() for w in net.residual]
-        # The skip layer with one more output, constant 1 on the pose rows (weight 0, bias 1).
-        self.skip_weight = F.pad(net.skip.weight.detach().t(), (0, 1))  # (layers C, C + 1)
-        self.skip_bias = torch.cat([net.skip.bias.detach(), net.skip.bias.new_ones(1)])
-        self.output = torch.cat(
-            [net.output.weight.detach().t(), net.output.bias.detach()[:, None]]
-        )  # (C+1, 1)
+        c, self.layers, self.dilations = net.channels, net.layers, net.dilations
+        self.channels, self.gap = c, max(net.dilations)
+        with torch.no_grad():
+            # The value half of every gate pre-activation doubled: sigmoid(2 v) gives tanh(v).
+            double = torch.cat([torch.ones(c), torch.full((c,), 2.0)]).to(net.input.weight)
+            self.value_scale = double.repeat(self.layers)  # (layers 2C,) over the conditioner's columns
+            self.cond_weight = net.cond_proj.weight.t() * self.value_scale  # (1, layers 2C)
+            self.cond_bias = net.cond_proj.bias * self.value_scale
+            self.input_weight = net.input.weight.t().clone()  # (1, C)
+            self.dilated = [w * double for w in net.dilated]
+            self.residual = [_read_gated(w) for w in net.residual]
+            skip = net.skip.weight.t().split(c)  # (C, C) per layer
+            # The skip layer with one more output, constant 1 on the pose rows (weight 0, bias 1).
+            self.skip_weight = F.pad(torch.cat([_read_gated(w) for w in skip]), (0, 1))  # (layers 2C, C + 1)
+            self.skip_bias = torch.cat([net.skip.bias, net.skip.bias.new_ones(1)])
+            self.output = torch.cat([net.output.weight.t(), net.output.bias[:, None]])  # (C + 1, 1)
         self.workspaces: dict[int, dict] = {}
 
     def workspace(self, batch: int, like: torch.Tensor) -> dict:
@@ -151,9 +166,10 @@ class FusedEps:
         pose = pose.view(rows, 1)
         buffer = like.new_zeros(rows + 2 * gap, c)
         y = buffer[gap : gap + rows]
-        gated = like.new_empty(rows, self.layers * c)
+        gated = like.new_empty(rows, self.layers * 2 * c)
         gate_mask = like.new_zeros(d + gap, self.layers, 2 * c)
         gate_mask[d:, :, :c] = -math.inf
+        slots = gated.split(2 * c, dim=1)
         space = {
             "rows": rows,
             "y": y,
@@ -162,7 +178,7 @@ class FusedEps:
                 for k in self.dilations
             ],
             "gated": gated,
-            "gated_columns": gated.split(c, dim=1),
+            "slots": [(slot, slot[:, :c], slot[:, c:]) for slot in slots],
             "input_bias": pose * self.net.input.bias.detach(),
             "skip_bias": pose * self.skip_bias,
             "gate_mask": gate_mask.view(d + gap, -1),
@@ -172,19 +188,24 @@ class FusedEps:
 
     def condition(self, h: torch.Tensor, space: dict) -> torch.Tensor:
         """(B, cond_dim) encoder states -> (layers, rows, 2 C): the conditioner per row (gap rows: -inf)."""
-        cond = self.net.cond_proj(self.net.cond_upsample(h).unsqueeze(-1))  # (B, D, layers 2C)
+        up = self.net.cond_upsample(h)  # (B, D)
+        cond = torch.addmm(self.cond_bias, up.reshape(-1, 1), self.cond_weight).view(*up.shape, -1)
         cond = F.pad(cond, (0, 0, 0, self.gap)) + space["gate_mask"]
         return cond.view(space["rows"], self.layers, -1).transpose(0, 1).contiguous()
+
+    def step_bias(self, step_emb: torch.Tensor) -> torch.Tensor:
+        """A step embedding (layers, 1, 2 C) with its value halves doubled, to add to `condition`'s."""
+        return step_emb * self.value_scale.view(self.layers, 1, -1)
 
     def features(self, x: torch.Tensor, bias: tuple[torch.Tensor, ...], space: dict) -> torch.Tensor:
         """The skip layer's output with its column of ones (rows, C + 1) for noisy poses x (rows, 1)."""
         y = space["y"]
         F.leaky_relu_(torch.addmm(space["input_bias"], x, self.input_weight, out=y), 0.4)
-        for i, (taps, gated) in enumerate(zip(space["taps"], space["gated_columns"], strict=True)):
-            gate, value = torch.addmm(bias[i], torch.cat(taps, dim=1), self.dilated[i]).chunk(2, dim=1)
-            torch.mul(torch.sigmoid(gate), torch.tanh(value), out=gated)
+        for i, (taps, (slot, gate, value)) in enumerate(zip(space["taps"], space["slots"], strict=True)):
+            torch.sigmoid(torch.addmm(bias[i], torch.cat(taps, dim=1), self.dilated[i]), out=slot)
+            value.mul_(gate)  # [s_g, s_g s_v]
             if i < self.layers - 1:
-                y.addmm_(gated, self.residual[i], beta=0.7071067811865476)
+                y.addmm_(slot, self.residual[i], beta=0.7071067811865476)
         return F.leaky_relu_(torch.addmm(space["skip_bias"], space["gated"], self.skip_weight), 0.4)
 
 
@@ -218,8 +239,9 @@ class ATEncoder(nn.Module):
         return self.lstm(x, state)
 
     def step_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """Per layer: [W_ih | W_hh] transposed (in + hidden, 4 hidden) with the gates reordered (i, f, o, g),
-        and b_ih + b_hh. Rebuilt whenever a weight changes (an optimizer step, a load, a move)."""
+        """Per layer: [W_ih | W_hh] transposed (in + hidden, 4 hidden) with the gates reordered (i, f, o, g)
+        and g's doubled, and b_ih + b_hh likewise. Rebuilt whenever a weight changes (an optimizer step, a
+        load, a move)."""
         params = list(self.lstm.parameters())
         # _version counts in-place writes: a cached copy of weights trained since is never used.
         key = tuple((p.data_ptr(), p._version, p.device) for p in params)
@@ -232,8 +254,10 @@ class ATEncoder(nn.Module):
                 for k in range(self.lstm.num_layers):
                     w_ih, w_hh, b_ih, b_hh = (getattr(self.lstm, f"{n}_l{k}") for n in
                                               ("weight_ih", "weight_hh", "bias_ih", "bias_hh"))  # fmt: skip
-                    weight = torch.cat([w_ih, w_hh], dim=1)[order].t().contiguous()
-                    layers.append((weight, (b_ih + b_hh)[order]))
+                    scale = torch.ones(4 * hidden, 1, device=w_ih.device)
+                    scale[3 * hidden :] = 2.0  # the g gate's tanh as a sigmoid (see step)
+                    weight = (torch.cat([w_ih, w_hh], dim=1)[order] * scale).t().contiguous()
+                    layers.append((weight, (b_ih + b_hh)[order] * scale[:, 0]))
             self._step_cache = (key, layers)
         return self._step_cache[1]
 
@@ -246,11 +270,11 @@ class ATEncoder(nn.Module):
             state = (x.new_zeros(self.lstm.num_layers, x.shape[0], hidden),) * 2
         hs, cs = [], []
         for (weight, bias), h, c in zip(self.step_weights(), state[0], state[1], strict=True):
-            gates = torch.addmm(bias, torch.cat([x, h], dim=1), weight)
-            sig = torch.sigmoid(gates[:, : 3 * hidden])
-            i, f, o = sig.chunk(3, dim=1)
-            c = torch.addcmul(f * c, i, torch.tanh(gates[:, 3 * hidden :]))
-            x = o * torch.tanh(c)
+            # One sigmoid for all four gates: the g rows are doubled in step_weights, tanh(z) = 2 sig(2z) - 1
+            # (torch's CPU tanh is ~10-20x slower than its sigmoid).
+            i, f, o, g = torch.sigmoid(torch.addmm(bias, torch.cat([x, h], dim=1), weight)).chunk(4, dim=1)
+            c = torch.addcmul(f * c - i, i, g, value=2.0)  # f c + i tanh(.)
+            x = torch.addcmul(-o, o, torch.sigmoid(2.0 * c), value=2.0)  # o tanh(c)
             hs.append(x)
             cs.append(c)
         return x, (torch.stack(hs), torch.stack(cs))
@@ -469,7 +493,7 @@ class FrameTables:
         self.steps, self.embeddings, self.fused = steps, embeddings, fused
         if fused is not None:
             # Per step, the output layer times the update's weights: x <- a x + b out, x0 = px x + po out.
-            self.step_bias = [embeddings[:, t] for t in steps.timesteps]
+            self.step_bias = [fused.step_bias(embeddings[:, t]) for t in steps.timesteps]
             self.update = [fused.output * b for b in steps.out_coef]
             self.estimate = [fused.output * po for po in steps.x0_out_coef] if any(steps.prev_coef) else None
 
