@@ -611,9 +611,9 @@ def bench_gesture(
     ckpt: str | None = None,
     frames: int = 40,
     repeats: int = 5,
-    sampler: str = "dpmpp",
+    sampler: str = "ddim",
     steps: int | None = 10,
-    eta: float = 0.0,
+    eta: float = 1.0,
     streams: tuple[int, ...] = (16, 64, 128),
 ) -> dict:
     """DiffMotion generation speed: seconds per frame of one stream with DDPM over all N steps and with
