@@ -16,7 +16,9 @@ def test_report_writes_and_prints_the_result(tmp_path, capsys):
 
 
 def test_gesture_benchmark_reports_seconds_per_frame(tmp_path):
-    result = bench_gesture(str(tmp_path / "gesture.json"), frames=2, repeats=1, steps=3, streams=(2, 3))
+    result = bench_gesture(
+        str(tmp_path / "gesture.json"), frames=2, repeats=1, sampler="dpmpp", steps=3, eta=0.0, streams=(2, 3)
+    )
     saved = json.loads((tmp_path / "gesture.json").read_text())
     assert saved == json.loads(json.dumps(result))
     # Positive, not ordered: which is faster is the benchmark's to say, on a quiet machine.

@@ -449,11 +449,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
     b.add_argument("--repeats", type=count(1), default=5, help="interleaved rounds (default 5)")
-    b.add_argument(
-        "--sampler", choices=SAMPLERS, default="dpmpp", help="the few-step sampler (default dpmpp)"
-    )
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="the few-step sampler (default ddim)")
     b.add_argument("--steps", type=count(1), default=10, help="its steps (default 10)")
-    b.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+    b.add_argument("--eta", type=number(0, 1), default=1.0, help="DDIM noise (default 1: as DDPM's steps)")
     b.add_argument("--streams", default="16,64,128", help="batched streams timed (default 16,64,128)")
     b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
