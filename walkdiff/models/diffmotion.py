@@ -130,9 +130,9 @@ class FusedEps:
     - the output layer and the sampler step are one addmm: x <- a x + b (s W + c) is
       addmm(x, [s, 1], b [W; c], beta=a), with the skip layer's output s given a column of ones.
 
-    Kept over TorchScript (deprecated in torch 2.13) and ONNX Runtime (1.3-2x faster in a side
-    measurement, but an export of tens of seconds at each generation and a runtime and GPU build of its
-    own): plain torch, one code path for CPU and GPU, nothing to compile (README, fast sampling).
+    Kept over TorchScript (deprecated in torch 2.13) and ONNX Runtime (faster in a side measurement, but
+    an export of tens of seconds at each generation and a runtime and GPU build of its own): plain
+    torch, one code path for CPU and GPU, nothing to compile (README, fast per-frame sampling).
     """
 
     def __init__(self, net: EpsNetwork, dim: int):
