@@ -96,6 +96,30 @@ CASES = {
         ["bench", "stream", "--out", "s.json", "--threads", "two"],
         ["--threads"],
     ),
+    "gesture with steps for ddpm": (
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--steps", "10"],
+        ["--steps", "ddpm"],
+    ),
+    "gesture with eta for dpmpp": (
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--sampler", "dpmpp", "--eta", "0.5"],
+        ["--eta", "ddim only"],
+    ),
+    "gesture with an unknown sampler": (
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--sampler", "heun"],
+        ["--sampler"],
+    ),
+    "evaluate-gesture with zero steps": (
+        ["evaluate-gesture", "--ckpt", "g", "--out", "o", "--sampler", "ddim", "--steps", "0"],
+        ["--steps"],
+    ),
+    "evaluate-gesture with eta over 1": (
+        ["evaluate-gesture", "--ckpt", "g", "--out", "o", "--sampler", "ddim", "--eta", "2"],
+        ["--eta"],
+    ),
+    "walk with steps for ddpm": (
+        ["walk", "--ckpt", "g", "--out", "o", "--path", "p", *STYLE, "--steps", "5"],
+        ["--steps", "ddpm"],
+    ),
     "evaluate-gesture at a nan threshold": (
         ["evaluate-gesture", "--ckpt", "g", "--out", "o", "--pck-threshold", "nan"],
         ["--pck-threshold"],

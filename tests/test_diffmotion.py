@@ -15,6 +15,7 @@ from test_speech import write_take
 from walkdiff import memory
 from walkdiff.cli import main
 from walkdiff.data.speech import SpeechDataModule
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.errors import WalkdiffError
 from walkdiff.gesture import (
     beat_consistency,
@@ -27,7 +28,7 @@ from walkdiff.gesture import (
     pck,
     shift_beats,
 )
-from walkdiff.models.diffmotion import DiffMotion
+from walkdiff.models.diffmotion import ATEncoder, DiffMotion
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.filters import savgol
 
@@ -97,6 +98,89 @@ def test_generation_is_incremental_batched_and_seeded(trained):
     # Frame t depends only on audio up to t + lookahead: a shorter audio gives the same first frames.
     short = model.generate(audio[:20], torch.Generator().manual_seed(3), streams=3)
     torch.testing.assert_close(short[:, : 20 - 8], one[:, : 20 - 8])
+
+
+SPEC = dict(
+    dataset="t", feature_dim=6, num_joints=2, window=20, fps=20.0, joints=("a", "b"), rotation="expmap",
+    audio_dim=4, past=2, lookahead=3,
+)  # fmt: skip
+
+
+def untrained_with_output(**options) -> DiffMotion:
+    """A small untrained model whose eps network's output layer is not zero (as it is at initialisation),
+    so that every layer of the network shows in the samples."""
+    torch.manual_seed(0)
+    model = DiffMotion(SPEC, **TINY | options).eval()
+    torch.nn.init.normal_(model.eps_net.output.weight, std=0.5)
+    torch.nn.init.normal_(model.eps_net.output.bias, std=0.5)
+    return model
+
+
+def test_lstm_step_is_nn_lstm_as_one_addmm_per_layer():
+    torch.manual_seed(0)
+    encoder = ATEncoder(pose_dim=6, window_dim=20, hidden=32, layers=2, audio_dim=8, dropout=0.1).eval()
+    previous, audio = torch.randn(3, 5, 6), torch.randn(3, 5, 8)
+    expected, (h_n, c_n) = encoder.lstm(torch.cat([previous, audio], dim=-1))
+    state = None
+    with torch.no_grad():
+        for f in range(5):
+            h, state = encoder(previous[:, f : f + 1], audio[:, f : f + 1], state)
+            torch.testing.assert_close(h[:, 0], expected[:, f], atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(state[0], h_n, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(state[1], c_n, atol=1e-6, rtol=1e-5)
+    # A weight changed in place (an optimizer step) is seen by the next step: no stale copy is used.
+    with torch.no_grad():
+        encoder.lstm.weight_hh_l1.mul_(2)
+        expected, _ = encoder.lstm(torch.cat([previous[:, :1], audio[:, :1]], dim=-1))
+        h, _ = encoder(previous[:, :1], audio[:, :1])
+    torch.testing.assert_close(h, expected, atol=1e-6, rtol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "sampler", [SamplerChoice(), SamplerChoice("ddim", 4, 0.5), SamplerChoice("dpmpp", 4)]
+)
+def test_fused_eps_network_gives_the_modules_numbers(sampler):
+    model = untrained_with_output()
+    audio = torch.randn(12, 4)
+    plain = model.generate(audio, torch.Generator().manual_seed(5), 3, sampler=sampler, fused=False)
+    fused = model.generate(audio, torch.Generator().manual_seed(5), 3, sampler=sampler, fused=True)
+    assert plain.abs().max() > 0.5 and not torch.allclose(plain[0], plain[1])  # streams differ
+    assert (fused - plain).abs().max() < 1e-4 * plain.abs().max()
+    again = model.generate(audio, torch.Generator().manual_seed(5), 3, sampler=sampler, fused=True)
+    torch.testing.assert_close(again, fused, atol=0, rtol=0)  # same seed, same output
+
+
+def test_few_step_sampling_calls_the_network_once_a_step():
+    model = untrained_with_output(timesteps=20)
+    calls = []
+    model.eps_net.register_forward_hook(lambda *_: calls.append(1))
+    audio = torch.randn(7, 4)
+    for sampler, passes in ((SamplerChoice("ddim", 5), 5), (SamplerChoice("dpmpp", 3), 3), (None, 20)):
+        calls.clear()
+        poses = model.generate(audio, torch.Generator().manual_seed(1), 2, sampler=sampler, fused=False)
+        assert poses.shape == (2, 7, 6) and torch.isfinite(poses).all()
+        assert len(calls) == 7 * passes
+    # DDIM over all N steps with eta = 1 is ancestral DDPM: the same draws give the same poses.
+    ddpm = model.generate(audio, torch.Generator().manual_seed(2), 2)
+    ddim = model.generate(audio, torch.Generator().manual_seed(2), 2, sampler=SamplerChoice("ddim", 20, 1.0))
+    torch.testing.assert_close(ddim, ddpm)
+    # ... and DDIM's deterministic eta = 0 over the same steps is not.
+    ode = model.generate(audio, torch.Generator().manual_seed(2), 2, sampler=SamplerChoice("ddim", 20))
+    assert (ode - ddpm).abs().max() > 1e-3
+
+
+def test_sampler_options_a_sampler_does_not_use_are_refused():
+    for options, words in (
+        (("ddpm", 10, 0.0), "--steps applies to ddim and dpmpp"),
+        (("dpmpp", 10, 0.5), "--eta applies to ddim only"),
+        (("ddim", 0, 0.0), "--steps must be at least 1"),
+        (("heun", None, 0.0), "--sampler"),
+    ):
+        with pytest.raises(WalkdiffError, match=words):
+            SamplerChoice(*options)
+    model = untrained_with_output()
+    with pytest.raises(WalkdiffError, match="sampling steps must be in"):
+        model.sampling_tables(SamplerChoice("ddim", 11))  # more steps than the 10 trained
 
 
 def test_savgol_reduces_jerk_and_keeps_length():
@@ -202,9 +286,14 @@ def test_evaluate_gesture_report(trained, tmp_path):
     assert [row["take"] for row in report["takes"]] == ["a", "b"]
     row = report["takes"][0]
     assert row["frames"] == 40 and row["onsets"] > 0
+    assert report["sampler"] == "ddpm-10"
     for name in ("generated", "smoothed"):
         assert row[name]["l1"] > 0 and 0 <= row[name]["pck"] <= 1 and row[name]["diversity"] > 0
         assert 0 <= row[name]["bc"] <= 1 and 0 <= row[name]["bc_shifted"] <= 1
+        for key in ("l1", "pck", "bc", "jerk"):  # each mean within its interval over samples
+            low, high = row[name][f"{key}_ci95"]
+            assert low <= row[name][key] <= high, (name, key)
+        assert 0 < row[name]["diversity_ci95"][0] <= row[name]["diversity_ci95"][1]
     assert row["smoothed"]["jerk"] < row["generated"]["jerk"]
     assert (tmp_path / "a" / "a.gif").is_file()
 
@@ -213,6 +302,23 @@ def test_evaluate_gesture_report(trained, tmp_path):
     assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(out), "--repeats", "2"]) == 0
     again = json.loads((out / "report.json").read_text())
     assert again["samples"] == 2 and again["takes"][0]["generated"] == row["generated"]
+
+    # A few-step sampler: named in the report, and different samples.
+    fast = tmp_path / "dpmpp"
+    args = [
+        "evaluate-gesture",
+        "--ckpt",
+        str(ckpt),
+        "--out",
+        str(fast),
+        "--samples",
+        "2",
+        "--sampler",
+        "dpmpp",
+    ]
+    assert main([*args, "--steps", "3"]) == 0
+    few = json.loads((fast / "report.json").read_text())
+    assert few["sampler"] == "dpmpp-3" and few["takes"][0]["generated"]["l1"] != row["generated"]["l1"]
 
 
 def test_missing_checkpoint_is_a_clear_error(tmp_path, capsys):

@@ -589,44 +589,90 @@ def bench_sample(
     return result
 
 
-def _gesture_models(ckpt: str | None) -> dict:
-    """DiffMotion at N = 100 (the checkpoint, or untrained) and N = 500 (same network, untrained).
+def _gesture_model(ckpt: str | None):
+    """The DiffMotion checkpoint, or an untrained one of the ZEGGS config's size (N = 100).
 
-    Speed depends on the architecture and N only, so untrained weights time the same as trained ones.
+    Speed depends on the architecture and the sampler only, so untrained weights time as trained ones.
     """
     from walkdiff.models.diffmotion import DiffMotion
 
-    if ckpt is None:
-        spec = dict(
-            dataset="zeggs", feature_dim=45, num_joints=15, window=120, fps=20.0,
-            joints=tuple(map(str, range(15))), rotation="expmap", audio_dim=27, past=10, lookahead=20,
-        )  # fmt: skip
-        base = DiffMotion(spec)
-    else:
+    if ckpt is not None:
         from walkdiff.gesture import load_model
 
-        base = load_model(ckpt)
-    options = {k: v for k, v in base.hparams.items() if k != "data_spec"}
-    models = {base.diffusion.num_timesteps: base}
-    for n in (100, 500):
-        models.setdefault(n, DiffMotion(base.spec, **options | {"timesteps": n}))
-    return models
+        return load_model(ckpt).eval()
+    spec = dict(
+        dataset="zeggs", feature_dim=45, num_joints=15, window=120, fps=20.0,
+        joints=tuple(map(str, range(15))), rotation="expmap", audio_dim=27, past=10, lookahead=20,
+    )  # fmt: skip
+    return DiffMotion(spec).eval()
 
 
-def bench_gesture(out: str, ckpt: str | None = None, frames: int = 40, repeats: int = 3) -> dict:
-    """DiffMotion generation speed: seconds per frame of one stream at N = 100 and 500, 16 streams batched."""
-    models = _gesture_models(ckpt)
-    audio = torch.randn(frames, models[100].spec["audio_dim"])
-    result = {"benchmark": "gesture", "checkpoint": ckpt, "frames_timed": frames, "repeats": repeats}
-    for n, model in progress(models.items(), desc="bench gesture", unit="setting"):
-        model.eval()
-        model.generate(audio[:3])  # warm-up
-        one = _median_seconds(lambda model=model: model.generate(audio), repeats)
-        result[f"seconds_per_frame_1_stream_N{n}"] = round(one / frames, 4)
-        result[f"realtime_factor_N{n}"] = round(1 / model.spec["fps"] / (one / frames), 2)
-    batched = _median_seconds(lambda: models[100].generate(audio, streams=16), repeats)
-    result["frames_per_second_16_streams_N100"] = round(16 * frames / batched, 1)
-    result["target_seconds_per_frame_N100"] = 0.05
+def bench_gesture(
+    out: str,
+    ckpt: str | None = None,
+    frames: int = 40,
+    repeats: int = 5,
+    sampler: str = "ddim",
+    steps: int | None = 10,
+    eta: float = 1.0,
+    streams: tuple[int, ...] = (16, 64, 128),
+) -> dict:
+    """DiffMotion generation speed: seconds per frame of one stream with DDPM over all N steps and with
+    the few-step `sampler`, each plain (the eps module and `run_steps`) and fused (`FusedEps`); frames per
+    second of `streams` streams batched (few-step, fused) and which of them keep up with the model's fps.
+
+    Timings that are compared are interleaved rounds, `repeats` of them, reported as medians.
+    """
+    from walkdiff.diffusion import SamplerChoice
+
+    few = SamplerChoice(sampler, steps, eta)
+    model = _gesture_model(ckpt)
+    fps, n = model.spec["fps"], model.diffusion.num_timesteps
+    audio = torch.randn(frames, model.spec["audio_dim"])
+    settings = {
+        f"{label}_{kind}": (choice, kind == "fused")
+        for choice, label in (
+            (SamplerChoice(), f"ddpm{n}"),
+            (few, few.label(model.diffusion).replace("-", "")),
+        )
+        for kind in ("plain", "fused")
+    }
+    result = {
+        "benchmark": "gesture",
+        "checkpoint": ckpt,
+        "frames_timed": frames,
+        "repeats": repeats,
+        "fps": fps,
+        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+    }
+    batch_rounds = max(1, repeats // 2)
+    bar = progress(
+        total=len(settings) * repeats + len(streams) * batch_rounds, desc="bench gesture", unit="run"
+    )
+
+    def counted(fn):  # a timed run that then advances the bar (microseconds, inside the timing)
+        return lambda: (fn(), bar.update(1))
+
+    with bar:
+        for choice, fused in settings.values():  # warm-up
+            model.generate(audio[:3], sampler=choice, fused=fused)
+        runs = [
+            counted(lambda choice=choice, fused=fused: model.generate(audio, sampler=choice, fused=fused))
+            for choice, fused in settings.values()
+        ]
+        one = _interleaved_medians(runs, repeats)
+        result["seconds_per_frame_1_stream"] = {name: round(t / frames, 5) for name, t in zip(settings, one)}
+        result["lstm_step_ms"] = _lstm_step_ms(model, repeats)
+        batched = _interleaved_medians(
+            [counted(lambda s=s: model.generate(audio, streams=s, sampler=few)) for s in streams],
+            batch_rounds,
+        )
+    result["sampler_batched"] = few.label(model.diffusion)
+    result["frames_per_second_batched"] = {str(s): round(s * frames / t, 1) for s, t in zip(streams, batched)}
+    realtime = [s for s, t in zip(streams, batched) if t / frames <= 1 / fps]
+    result["realtime_streams"] = max(realtime, default=0)  # the most measured streams that keep up
+    result["realtime_streams_estimate"] = int(max(s * frames / t for s, t in zip(streams, batched)) // fps)
+    result["target"] = {"seconds_per_frame_1_stream": 0.005, "realtime_streams": 64}
     result["machine"] = machine()
     report(out, result)
     return result
@@ -744,6 +790,9 @@ def bench_stream(
     most: int = 256,
     seed: int = 0,
     threads: tuple[int, ...] = (1, 2),
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
 ) -> dict:
     """Streaming: latency from audio in to pose out with audio arriving in real time, the streams kept
     in real time batched; the same for the path walker (a path drawn while walking). Latency is timed
@@ -751,22 +800,25 @@ def bench_stream(
     the streams kept in real time at each of `threads`."""
     before = torch.get_num_threads()
     try:
-        return _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads)
+        from walkdiff.diffusion import SamplerChoice
+
+        choice = SamplerChoice(sampler, steps, eta)
+        return _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, choice)
     finally:
         torch.set_num_threads(before)
 
 
-def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads) -> dict:
+def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, sampler) -> dict:
     torch.set_num_threads(1)
     from walkdiff.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
 
-    model = next(iter(_gesture_models(ckpt).values())).eval()  # the checkpoint, or ZEGGS-sized untrained
+    model = _gesture_model(ckpt).eval()  # the checkpoint, or ZEGGS-sized untrained
     rate = model.spec.get("sample_rate") or rate
     fps, rng = model.spec["fps"], np.random.default_rng(seed)
     audio = rng.normal(0, 0.1, round(seconds * rate)).astype(np.float32)
     chunk = max(1, round(chunk_ms / 1000 * rate))
-    GestureStream(model, rate, seed).push(audio[:rate])  # warm-up
-    stream = GestureStream(model, rate, seed)
+    GestureStream(model, rate, seed, sampler=sampler).push(audio[:rate])  # warm-up
+    stream = GestureStream(model, rate, seed, sampler=sampler)
     pieces = [audio[i : i + chunk] for i in range(0, len(audio), chunk)]
     arrivals = [min((i + 1) * chunk, len(audio)) / rate for i in range(len(pieces))]
     latency, since_moment, cpu_per_frame = _realtime_latency(
@@ -783,7 +835,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     steady = rng.normal(0, 0.1, first + (frames + 2) * hop).astype(np.float32)
 
     def gesture_batch(n: int):
-        batch = GestureBatch(model, seed)
+        batch = GestureBatch(model, seed, sampler)
         streams = [GestureStream(model, rate, batch=batch) for _ in range(n)]
         for s in streams:  # audio up to the first frame's look-ahead: then each hop makes a frame
             s.feed(steady[:first])
@@ -803,7 +855,8 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     result = {
         "benchmark": "stream", "checkpoint": ckpt, "seed": seed,
         "gesture": {
-            "fps": fps, "rate": rate, "chunk_ms": chunk_ms, "audio_seconds": seconds,
+            "sampler": sampler.label(model.diffusion), "fps": fps, "rate": rate, "chunk_ms": chunk_ms,
+            "audio_seconds": seconds,
             "lookahead_ms": round(lookahead_ms, 1),
             "latency_chunk_to_pose": _percentiles(latency),
             "latency_audio_to_pose": _percentiles(since_moment),
@@ -817,9 +870,9 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     step = speed / wfps  # one path point per frame time, as far as the walker goes in it
     u = np.arange(round(seconds * wfps) + 200) * step
     points = np.stack([3 * speed * np.sin(u / (4 * speed)), u], axis=-1)  # a gentle S, drawn as walked
-    walking = WalkStream(walk, 0, speed, seed)
+    walking = WalkStream(walk, 0, speed, seed, sampler=sampler)
     lead = int(np.ceil((walking.reach + walking.pace[0, -1]) / step)) + 2  # the path ahead it needs first
-    WalkStream(walk, 0, speed, seed).push(points[: lead + 10])  # warm-up
+    WalkStream(walk, 0, speed, seed, sampler=sampler).push(points[: lead + 10])  # warm-up
     walking.push(points[:lead])  # the frames the lead allows at once, untimed: then a frame per point
     arrivals = [i / wfps for i in range(round(seconds * wfps))]
     w_latency, _, w_cpu_per_frame = _realtime_latency(
@@ -827,7 +880,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     )
 
     def walk_batch(n: int):
-        batch = WalkBatch(walk, seed)
+        batch = WalkBatch(walk, seed, sampler)
         walkers = [WalkStream(walk, k % len(walk.spec["styles"]), speed, batch=batch) for k in range(n)]
         for w in walkers:
             w.feed(points)  # far ahead of them: every frame is ready
@@ -847,6 +900,27 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     result["machine"] = machine()
     report(out, result)
     return result
+
+
+def _lstm_step_ms(model, repeats: int) -> dict:
+    """Milliseconds of one encoder step of one stream: nn.LSTM against the addmm form generation uses."""
+    encoder = model.encoder
+    x = torch.randn(1, 1, encoder.lstm.input_size)
+    rounds = 50
+    with torch.inference_mode():
+        state = encoder.step(x[:, 0], None)[1]
+
+        def lstm() -> None:
+            for _ in range(rounds):
+                encoder.lstm(x, state)
+
+        def addmm() -> None:
+            for _ in range(rounds):
+                encoder.step(x[:, 0], state)
+
+        lstm(), addmm()
+        times = _interleaved_medians([lstm, addmm], repeats)
+    return {"nn_lstm": round(1e3 * times[0] / rounds, 4), "addmm": round(1e3 * times[1] / rounds, 4)}
 
 
 def _strengths(text: str) -> tuple[float, ...]:
@@ -897,7 +971,10 @@ def run(args) -> None:
             seeds=args.seeds, ground=args.ground,
         )  # fmt: skip
     elif args.what == "gesture":
-        bench_gesture(args.out, args.ckpt, args.frames)
+        bench_gesture(
+            args.out, args.ckpt, args.frames, args.repeats, args.sampler, args.steps, args.eta,
+            _frame_counts(args.streams, "--streams"),
+        )  # fmt: skip
     elif args.what == "stream":
         bench_stream(
             args.out,

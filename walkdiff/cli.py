@@ -18,6 +18,11 @@ SAMPLER_HELP = (
     "solved to second order, closer to DDPM at 10 steps for the same cost"
 )
 
+FRAME_SAMPLER_HELP = (
+    "per frame: ddpm, ancestral over all N trained steps (default); ddim over --steps of them (--eta its "
+    "noise); dpmpp, DPM-Solver++(2M) over --steps (see the README's speed and quality table)"
+)
+
 LIGHTNING_VERBS = ("fit", "validate", "test")
 PREVIEW_HELP = "seconds of each clip the GIF preview shows, from its start (default 20)"
 PROFILE_HELP = (
@@ -344,6 +349,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--keep-trajectory", action="store_true", help="keep the source's root path exactly")
 
+    def frame_sampler_options(p: argparse.ArgumentParser) -> None:
+        """Options of the per-frame sampler of DiffMotion and the path walker."""
+        p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=FRAME_SAMPLER_HELP)
+        p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+        p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+
     p = sub.add_parser("gesture", help="speech-driven gestures from a WAV with DiffMotion: BVH + GIF")
     p.add_argument("--ckpt", required=True, help="DiffMotion checkpoint")
     p.add_argument(
@@ -353,6 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
+    frame_sampler_options(p)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
     p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
@@ -391,6 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--speed", type=number(0, above=True), default=None, help="m/s (default: the file's, or the style's)"
     )
     p.add_argument("--seed", type=count(0), default=0)
+    frame_sampler_options(p)
     p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -415,6 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="folder for report.json and per-take BVH/GIF")
     p.add_argument("--samples", type=count(1), default=5, help="samples of each take's audio (default 5)")
     p.add_argument("--seed", type=count(0), default=0)
+    frame_sampler_options(p)
     p.add_argument(
         "--clip-seconds", type=number(0, above=True), default=2.0, help="diversity clip length (default 2 s)"
     )
@@ -464,12 +478,19 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True)
     b.add_argument("--config", default="conf/xia_cpu.yaml")
     b.add_argument("--batches", type=count(1), default=30, help="batches timed per repeat")
-    b = bench.add_parser("gesture", help="DiffMotion seconds per frame (1 stream, N=100/500), 16 streams")
+    b = bench.add_parser(
+        "gesture", help="DiffMotion s/frame (1 stream: DDPM and few-step, plain and fused), batched streams"
+    )
     b.add_argument("--out", required=True)
     b.add_argument(
         "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
     )
     b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
+    b.add_argument("--repeats", type=count(1), default=5, help="interleaved rounds (default 5)")
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="the few-step sampler (default ddim)")
+    b.add_argument("--steps", type=count(1), default=10, help="its steps (default 10)")
+    b.add_argument("--eta", type=number(0, 1), default=1.0, help="DDIM noise (default 1: as DDPM's steps)")
+    b.add_argument("--streams", default="16,64,128", help="batched streams timed (default 16,64,128)")
     b = bench.add_parser(
         "stream", help="streaming latency (audio in -> pose out, path point -> frame) and real-time streams"
     )
@@ -497,6 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="1,2",
         help="torch thread counts the streams are timed at (default 1,2; latency: 1)",
     )
+    frame_sampler_options(b)
     b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     b.add_argument("--out", required=True, help="JSON file")
@@ -707,7 +729,10 @@ def run_command(args: argparse.Namespace) -> int:
         if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
             from walkdiff.gesture import evaluate_gesture
 
-            evaluate_gesture(args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root)
+            evaluate_gesture(
+                args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root,
+                sampler=args.sampler, steps=args.steps,
+            )  # fmt: skip
             print(f"wrote {args.out}/report.json")
             return 0
         if args.evaluator is None:

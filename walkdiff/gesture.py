@@ -12,6 +12,9 @@ generated and real motion are compared on the same footing):
   clips (DiffMotion's protocol).
 - Jerk: mean norm of the third difference of positions times fps^3 (walkdiff.metrics.Jitter).
 - Seconds per frame of generation.
+
+Each metric of the generated samples comes with a 95% percentile-bootstrap interval over the samples
+(`BOOTSTRAP` resamples), so samplers and settings can be told apart from the spread of the samples.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import torch
 from scipy.signal import argrelmin
 
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import check_free, output_folder, write_json
 from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
@@ -46,6 +50,7 @@ from walkdiff.tracking import log_file
 SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
 BEAT_SIGMA = 0.1  # seconds
 SHIFT_SECONDS = 2.0  # the audio-blind baseline of beat consistency
+BOOTSTRAP = 1000  # resamples of the samples behind each metric's interval
 
 
 # ---------------------------------------------------------------- model and synthesis
@@ -60,12 +65,20 @@ def load_model(path: str | Path, device: str | torch.device = "cpu"):
     return model
 
 
-def synthesize(model, audio: np.ndarray, streams: int = 1, seed: int = 0, smooth: bool = False) -> np.ndarray:
-    """(streams, F, D) pose features for (F, M) log-mel audio, the streams batched; optionally smoothed.
-    A progress bar counts the frames."""
+def synthesize(
+    model,
+    audio: np.ndarray,
+    streams: int = 1,
+    seed: int = 0,
+    smooth: bool = False,
+    sampler: SamplerChoice | None = None,
+) -> np.ndarray:
+    """(streams, F, D) pose features for (F, M) log-mel audio, the streams batched, each frame drawn by
+    `sampler` (default DDPM over all trained steps); optionally smoothed. A bar counts the frames."""
     generator = torch.Generator(device=model.device).manual_seed(seed)
     with progress(desc="gestures", unit="frame") as bar:
-        poses = model.generate(torch.from_numpy(audio), generator, streams, step_hook(bar)).cpu().numpy()
+        poses = model.generate(torch.from_numpy(audio), generator, streams, step_hook(bar), sampler)
+        poses = poses.cpu().numpy()
     return savgol(poses, SMOOTH_WINDOW, SMOOTH_ORDER, axis=1) if smooth else poses
 
 
@@ -121,8 +134,12 @@ def gesture(
     streams: int = 1,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
 ) -> dict:
     """`walkdiff gesture`: BVH(s) and a GIF (of their first `preview_seconds`) for a WAV file."""
+    choice = SamplerChoice(sampler, steps, eta)
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
     cap = PreviewCap(preview_seconds)
@@ -138,13 +155,14 @@ def gesture(
     samples, rate = read_wav(audio)
     mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
     start = time.perf_counter()
-    clips = synthesize(model, mel, streams, seed, smooth)
+    clips = synthesize(model, mel, streams, seed, smooth, choice)
     elapsed = time.perf_counter() - start
     files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate))
     return {
         "frames": len(mel),
         "seconds": len(mel) / model.spec["fps"],
         "streams": streams,
+        "sampler": choice.label(model.diffusion),
         "seconds_per_frame": elapsed / len(mel),
         "files": [str(f) for f in files],
         "preview": preview,
@@ -177,6 +195,9 @@ def gesture_stream(
     idle: float = 2.0,
     seconds: float | None = None,
     overwrite: bool = False,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
 ) -> dict:
     """`walkdiff gesture --stream`: poses as the audio arrives (raw s16le PCM on stdin, or a WAV that is
     still being written), one JSON line per frame on stdout, the BVH(s) written at the end."""
@@ -213,7 +234,8 @@ def gesture_stream(
     chunks = chunks if from_stdin else read_growing(audio, idle)  # opened once the outputs are free
 
     joints = list(spec["joints"])
-    batch, live, poses = GestureBatch(model, seed), [], [[] for _ in range(streams)]
+    choice = SamplerChoice(sampler, steps, eta)
+    batch, live, poses = GestureBatch(model, seed, choice), [], [[] for _ in range(streams)]
     limit = None if seconds is None else round(seconds * (rate or 0))
     received, started = 0, time.perf_counter()
 
@@ -339,8 +361,13 @@ def evaluate_gesture(
     clip_seconds: float = 2.0,
     pck_threshold: float = 0.1,
     root: str | None = None,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
 ) -> dict:
-    """`walkdiff evaluate-gesture`: every metric on the held-out part of each take, into report.json."""
+    """`walkdiff evaluate-gesture`: every metric on the held-out part of each take, with 95% intervals
+    over the samples, into report.json."""
+    choice = SamplerChoice(sampler, steps, eta)
     if samples < 1:
         raise WalkdiffError(f"--samples must be >= 1, got {samples}")
     if not 0 < pck_threshold < np.inf:
@@ -362,25 +389,32 @@ def evaluate_gesture(
         wav, rate = read_wav(take.wav)
         onsets = onset_times(wav[int(begin / fps * rate) : int(end / fps * rate)], rate)
         start = time.perf_counter()
-        raw = synthesize(model, take.audio[begin:end], samples, seed)
+        raw = synthesize(model, take.audio[begin:end], samples, seed, sampler=choice)
         elapsed = time.perf_counter() - start
         smooth = savgol(raw, SMOOTH_WINDOW, SMOOTH_ORDER, axis=1)
         truth = joint_positions(model, truth_features)
         duration, clip = (end - begin) / fps, round(clip_seconds * fps)
         row = {"take": take.name, "frames": end - begin, "seconds": duration, "onsets": len(onsets)}
         row["truth"] = _beat_row(truth, onsets, fps, duration) | {"jerk": mean_jerk(truth, fps)}
+        resamples = np.random.default_rng(seed).integers(0, samples, (BOOTSTRAP, samples))
         for name, clips in (("generated", raw), ("smoothed", smooth)):
             positions = np.stack([joint_positions(model, c) for c in clips])
             beats = [_beat_row(p, onsets, fps, duration) for p in positions]
-            row[name] = {
-                "l1": float(np.mean([l1_distance(p, truth) for p in positions])),
-                "pck": float(np.mean([pck(p, truth, pck_units) for p in positions])),
-                "bc": float(np.mean([b["bc"] for b in beats])),
-                "bc_shifted": float(np.mean([b["bc_shifted"] for b in beats])),
-                **beat_gain(beats),
-                "diversity": diversity(positions, clip) if samples * ((end - begin) // clip) >= 2 else None,
-                "jerk": mean_jerk(positions, fps),
+            per_sample = {
+                "l1": [l1_distance(p, truth) for p in positions],
+                "pck": [pck(p, truth, pck_units) for p in positions],
+                "bc": [b["bc"] for b in beats],
+                "bc_shifted": [b["bc_shifted"] for b in beats],
+                "jerk": [mean_jerk(p, fps) for p in positions],
             }
+            row[name] = {key: float(np.mean(values)) for key, values in per_sample.items()}
+            row[name] |= beat_gain(beats)
+            row[name]["diversity"] = None
+            if samples * ((end - begin) // clip) >= 2:
+                row[name]["diversity"] = diversity(positions, clip)
+                row[name]["diversity_ci95"] = diversity_interval(positions, clip, resamples)
+            for key, values in per_sample.items():
+                row[name][f"{key}_ci95"] = mean_interval(np.asarray(values), resamples)
             row[name]["jerk_over_truth"] = row[name]["jerk"] / row["truth"]["jerk"]
         row["seconds_per_frame"] = elapsed / (end - begin)  # all `samples` streams generated together
         _, row["preview"] = write_clips(
@@ -393,7 +427,9 @@ def evaluate_gesture(
         rows.append(row)
     report = {
         "checkpoint": str(ckpt),
+        "sampler": choice.label(model.diffusion),
         "samples": samples,
+        "bootstrap": BOOTSTRAP,
         "seed": seed,
         "pck_threshold_m": pck_threshold,
         "beat_sigma_s": BEAT_SIGMA,
@@ -403,6 +439,35 @@ def evaluate_gesture(
     }
     write_json(out_dir / "report.json", report)
     return report
+
+
+def mean_interval(values: np.ndarray, resamples: np.ndarray) -> list[float] | None:
+    """95% percentile-bootstrap interval of the mean of per-sample `values` (S,); resamples (R, S) of
+    sample indices. None for a single sample."""
+    if len(values) < 2:
+        return None
+    return [float(q) for q in np.percentile(values[resamples].mean(axis=1), [2.5, 97.5])]
+
+
+def diversity_interval(samples: np.ndarray, clip_frames: int, resamples: np.ndarray) -> list[float] | None:
+    """95% percentile-bootstrap interval of `diversity` over the samples (S, F, J, 3): a resample counts
+    each pair of clips as often as their samples were drawn together, never a clip against itself."""
+    count = samples.shape[1] // clip_frames
+    if len(samples) < 2 or count < 1:
+        return None
+    clips = samples[:, : count * clip_frames].reshape(-1, clip_frames, *samples.shape[2:])
+    distance = np.zeros((len(clips), len(clips)))
+    for i, j in itertools.combinations(range(len(clips)), 2):
+        distance[i, j] = distance[j, i] = l1_distance(clips[i], clips[j])
+    owner = np.repeat(np.arange(len(samples)), count)  # the sample of each clip
+    values = []
+    for draw in resamples:
+        drawn = np.bincount(draw, minlength=len(samples))[owner].astype(float)
+        weight = np.outer(drawn, drawn)
+        np.fill_diagonal(weight, 0.0)
+        if weight.sum() > 0:  # a draw of one sample cut into one clip has no pair
+            values.append((weight * distance).sum() / weight.sum())
+    return [float(q) for q in np.percentile(values, [2.5, 97.5])] if values else None
 
 
 def _beat_row(positions: np.ndarray, onsets: np.ndarray, fps: float, duration: float) -> dict:

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from walkdiff.data.speech import LogMelStream
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.path_walker import advance_root, path_control, path_start
 from walkdiff.motion.path import Polyline
@@ -41,10 +42,10 @@ from walkdiff.motion.path import Polyline
 class StreamBatch:
     """Streams of one model, advanced together a frame at a time; subclasses encode their controls."""
 
-    def __init__(self, model, seed: int = 0):
+    def __init__(self, model, seed: int = 0, sampler: SamplerChoice | None = None):
         self.model = model
         self.generator = torch.Generator(device=model.device).manual_seed(seed)
-        self.frames = model.start_streams(0)
+        self.frames = model.start_streams(0, sampler)  # sampler: default DDPM over all trained steps
         self.streams: list = []
 
     def join(self, stream) -> int:
@@ -93,7 +94,14 @@ class GestureStream:
     streaming came); it must be a whole number of samples per motion frame.
     """
 
-    def __init__(self, model, rate: int | None = None, seed: int = 0, batch: GestureBatch | None = None):
+    def __init__(
+        self,
+        model,
+        rate: int | None = None,
+        seed: int = 0,
+        batch: GestureBatch | None = None,
+        sampler: SamplerChoice | None = None,
+    ):
         spec = model.spec
         rate = rate or spec.get("sample_rate")
         if rate is None:
@@ -109,7 +117,7 @@ class GestureStream:
         self.total: int | None = None  # frames in all, once the audio has ended
         self.made: list[np.ndarray] = []
         self.waited: list[float] = []  # per frame made: the audio time (s) it waited for
-        self.batch = batch or GestureBatch(model, seed)
+        self.batch = batch or GestureBatch(model, seed, sampler)
         self.row = self.batch.join(self)
 
     def feed(self, samples: np.ndarray) -> None:
@@ -186,7 +194,15 @@ class WalkStream:
     gives. The walk lasts, as `walkdiff walk`, the frames it takes to cover the path at `speed`.
     """
 
-    def __init__(self, model, style: int, speed: float, seed: int = 0, batch: WalkBatch | None = None):
+    def __init__(
+        self,
+        model,
+        style: int,
+        speed: float,
+        seed: int = 0,
+        batch: WalkBatch | None = None,
+        sampler: SamplerChoice | None = None,
+    ):
         if not 0 < speed < math.inf:
             raise WalkdiffError(f"the walking speed must be a positive number, got {speed}")
         self.model, self.style, self.speed = model, int(style), float(speed)
@@ -200,7 +216,7 @@ class WalkStream:
         self.position = self.heading = self.progress = None
         self.made: list[np.ndarray] = []
         self.roots: list[tuple[np.ndarray, float]] = []  # per frame made: root (x, z) and heading there
-        self.batch = batch or WalkBatch(model, seed)
+        self.batch = batch or WalkBatch(model, seed, sampler)
         self.row = self.batch.join(self)
 
     def feed(self, points) -> None:

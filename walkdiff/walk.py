@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import check_free, output_folder, write_atomic, write_json
 from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
@@ -40,10 +41,17 @@ def frames_for(path: Polyline, speed: float, fps: float) -> int:
 
 
 def walk_paths(
-    model, path: Polyline, styles: list[int], speed: float | None, seed: int, frames: int | None = None
+    model,
+    path: Polyline,
+    styles: list[int],
+    speed: float | None,
+    seed: int,
+    frames: int | None = None,
+    sampler: SamplerChoice | None = None,
 ) -> tuple[np.ndarray, tuple[np.ndarray, float], np.ndarray]:
-    """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id; refused
-    before any work where the path is too long for memory, with a progress bar over the frames."""
+    """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id, each frame
+    drawn by `sampler` (default DDPM); refused before any work where the path is too long for memory,
+    with a progress bar over the frames."""
     style = torch.tensor(styles)
     speeds = model.style_speed[style].cpu() if speed is None else torch.full((len(styles),), float(speed))
     if (speeds <= 0).any():
@@ -52,7 +60,7 @@ def walk_paths(
     check_frames("--path", frames, WALK_BYTES_PER_FRAME, len(styles))
     generator = torch.Generator(device=model.device).manual_seed(seed)
     with progress(desc="walking", unit="frame") as bar:
-        raw, start = model.generate(path, style, speeds, frames, generator, step_hook(bar))
+        raw, start = model.generate(path, style, speeds, frames, generator, step_hook(bar), sampler)
     return raw, start, speeds.numpy()
 
 
@@ -137,9 +145,13 @@ def walk(
     gif: bool = True,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
 ) -> dict:
     """`walkdiff walk`: a BVH (+ a GIF of its first `preview_seconds` and a top-down plot) of the style
-    walking along the path file."""
+    walking along the path file, each frame drawn by the sampler (`SamplerChoice`)."""
+    choice = SamplerChoice(sampler, steps, eta)
     cap = PreviewCap(preview_seconds) if gif else None
     model = load_walker(ckpt)
     styles = list(model.spec["styles"])
@@ -160,7 +172,7 @@ def walk(
     out.mkdir(parents=True, exist_ok=True)
 
     started = time.perf_counter()
-    raw, start, speeds = walk_paths(model, polyline, [styles.index(style)], speed, seed)
+    raw, start, speeds = walk_paths(model, polyline, [styles.index(style)], speed, seed, sampler=choice)
     elapsed = time.perf_counter() - started
     motion = to_motion(model, raw[0], start)
     root_xz = motion.root_positions[:, [0, 2]]
@@ -176,6 +188,7 @@ def walk(
         "path_length_m": metres.length,
         "speed_m_s": float(speeds[0]) * unit,
         "seed": seed,
+        "sampler": choice.label(model.diffusion),
         "frames": motion.num_frames,
         "seconds": motion.num_frames / motion.fps,
         "generation_seconds": round(elapsed, 2),
@@ -231,6 +244,9 @@ def walk_stream(
     seed: int = 0,
     idle: float = 2.0,
     overwrite: bool = False,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
 ) -> dict:
     """`walkdiff walk --stream`: walking along a path whose points arrive as JSON lines (stdin, or a file
     still being written), one JSON line per frame on stdout as soon as the path ahead allows, the BVH at
@@ -253,7 +269,9 @@ def walk_stream(
     bvh = out / f"{stem}.bvh"
     check_free([bvh], overwrite)
     chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    stream = WalkStream(model, styles.index(style), units_per_s, seed)
+    stream = WalkStream(
+        model, styles.index(style), units_per_s, seed, sampler=SamplerChoice(sampler, steps, eta)
+    )
     names = model.profile.skeleton.names
     emit({
         "fps": fps, "joints": names, "units_per_metre": 1 / unit,

@@ -3,7 +3,10 @@ DPM-Solver++), guidance."""
 
 from walkdiff.diffusion.gaussian import PREDICTIONS, GaussianDiffusion, extract
 from walkdiff.diffusion.samplers import (
+    DEFAULT_STEPS,
+    SAMPLERS,
     Progress,
+    SamplerChoice,
     SamplerSteps,
     ddim_sample,
     ddpm_sample,
@@ -11,6 +14,7 @@ from walkdiff.diffusion.samplers import (
     guided,
     guided_batched,
     log_snr_timesteps,
+    randn_like,
     respace,
     run_steps,
     step_coefficients,
@@ -19,6 +23,9 @@ from walkdiff.diffusion.samplers import (
 from walkdiff.diffusion.schedules import SCHEDULES, beta_schedule, cosine_alphas_cumprod
 
 __all__ = [
+    "DEFAULT_STEPS",
+    "SAMPLERS",
+    "SamplerChoice",
     "PREDICTIONS",
     "SCHEDULES",
     "GaussianDiffusion",
@@ -33,6 +40,7 @@ __all__ = [
     "guided",
     "guided_batched",
     "log_snr_timesteps",
+    "randn_like",
     "respace",
     "run_steps",
     "step_coefficients",

@@ -57,6 +57,50 @@ class SamplerSteps:
     sqrt_one_minus_abar: list[float]
 
 
+SAMPLERS = ("ddpm", "ddim", "dpmpp")
+DEFAULT_STEPS = 10  # DDIM / DPM-Solver++ steps when none are given
+
+
+@dataclass(frozen=True)
+class SamplerChoice:
+    """A sampler as a user names it: ancestral DDPM over all T trained steps, DDIM over `steps` of them
+    (`eta` its noise: 0 deterministic, 1 with every step kept is DDPM), or DPM-Solver++(2M) over `steps`
+    spaced in log-SNR. Options a sampler does not use are refused, naming the command-line option."""
+
+    name: str = "ddpm"
+    steps: int | None = None  # DDIM / DPM-Solver++ steps (default DEFAULT_STEPS); unused by DDPM
+    eta: float = 0.0  # DDIM noise
+
+    def __post_init__(self) -> None:
+        if self.name not in SAMPLERS:
+            raise WalkdiffError(f"--sampler: expected one of {', '.join(SAMPLERS)}, got {self.name!r}")
+        if self.name != "ddim" and self.eta != 0:
+            raise WalkdiffError(
+                f"--eta applies to ddim only ({self.name} sets its own noise), got {self.eta}"
+            )
+        if self.steps is not None and self.steps < 1:
+            raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
+        if self.name == "ddpm" and self.steps is not None:
+            raise WalkdiffError("--steps applies to ddim and dpmpp: ddpm always takes every trained step")
+        if not (math.isfinite(self.eta) and 0 <= self.eta <= 1):
+            raise WalkdiffError(f"--eta must be in [0, 1], got {self.eta}")
+
+    def table(self, diffusion: GaussianDiffusion) -> SamplerSteps:
+        """The per-step constants of this sampler over `diffusion`'s trained steps."""
+        total = diffusion.num_timesteps
+        if self.name == "ddpm":
+            return step_coefficients(diffusion, range(total - 1, -1, -1), eta=1.0)
+        steps = self.steps or DEFAULT_STEPS
+        if self.name == "ddim":
+            return step_coefficients(diffusion, respace(total, steps), self.eta)
+        return step_coefficients(diffusion, log_snr_timesteps(diffusion, steps), 0.0, order=2)
+
+    def label(self, diffusion: GaussianDiffusion) -> str:
+        """'ddpm-100', 'ddim-10', 'ddim-10-eta0.5', 'dpmpp-10': the sampler and its network passes."""
+        steps = diffusion.num_timesteps if self.name == "ddpm" else self.steps or DEFAULT_STEPS
+        return f"{self.name}-{steps}" + (f"-eta{self.eta:g}" if self.eta else "")
+
+
 def respace(num_timesteps: int, steps: int) -> list[int]:
     """`steps` trained timesteps, evenly spaced and descending, from T - 1 down to 0."""
     if not 1 <= steps <= num_timesteps:
@@ -155,7 +199,8 @@ def _log_snr(abar: float) -> float:
     return 0.5 * math.log(abar / (1 - abar))
 
 
-def _randn_like(x: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+def randn_like(x: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+    """Standard normal noise of x's shape, dtype and device, from `generator` (the samplers' draws)."""
     # A generator on another device (say a CPU generator for a CUDA model) draws there and is copied.
     if generator is None or generator.device == x.device:
         return torch.randn(x.shape, generator=generator, device=x.device, dtype=x.dtype)
@@ -179,7 +224,7 @@ def run_steps(
     if x_T is None:
         if shape is None:
             raise WalkdiffError("give the sample shape or x_T")
-        x = _randn_like(torch.empty(tuple(shape), device=device), generator)
+        x = randn_like(torch.empty(tuple(shape), device=device), generator)
     else:
         if shape is not None and tuple(shape) != tuple(x_T.shape):
             raise WalkdiffError(f"x_T has shape {tuple(x_T.shape)} but the sample shape is {tuple(shape)}")
@@ -200,9 +245,7 @@ def run_steps(
     for k in order:
         if inpaint is not None:
             # Keep the known region on the current noise level so the model sees a consistent x_t.
-            noisy_known = (
-                known * steps.sqrt_abar[k] + _randn_like(x, generator) * steps.sqrt_one_minus_abar[k]
-            )
+            noisy_known = known * steps.sqrt_abar[k] + randn_like(x, generator) * steps.sqrt_one_minus_abar[k]
             held = strength >= 1 - steps.timesteps[k] / diffusion.num_timesteps
             x = torch.where(held, noisy_known, x)
         out = model_fn(x, t_table[k])
@@ -212,7 +255,7 @@ def run_steps(
             x.add_(x0_prev, alpha=steps.prev_coef[k])
         x0_prev = x0_hat
         if steps.sigma[k] > 0:
-            x.add_(_randn_like(x, generator), alpha=steps.sigma[k])
+            x.add_(randn_like(x, generator), alpha=steps.sigma[k])
         if callable(progress):
             progress(k + 1, total)
     if inpaint is not None:

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from walkdiff.diffusion import GaussianDiffusion, run_steps, step_coefficients
+from walkdiff.diffusion import GaussianDiffusion, SamplerChoice, SamplerSteps, randn_like, run_steps
 from walkdiff.models.base import MotionModule
 from walkdiff.motion.representation import Normalizer
 from walkdiff.spec import NeutralPose, SpeechSpec
@@ -105,8 +105,118 @@ class EpsNetwork(nn.Module):
         return torch.addmm(self.output.bias, skip, self.output.weight.t()).view(b, d)
 
 
+def _read_gated(weight: torch.Tensor) -> torch.Tensor:
+    """Weights (C, out) that read a gated output g = s_g (2 s_v - 1), as weights (2 C, out) that read
+    [s_g, s_g s_v]: g W = [s_g, s_g s_v] [-W; 2 W]."""
+    return torch.cat([-weight, 2 * weight])
+
+
+class FusedEps:
+    """An `EpsNetwork`'s calls and the sampler's update with fewer, larger operations: the same arithmetic,
+    built from the trained weights at generation time (nothing of it is trained or saved).
+
+    Per-frame sampling on a CPU is bound by the number of torch operations (~2-5 us each), not by its
+    arithmetic, so the work is laid out to need fewer of them:
+
+    - the B pose vectors are one column of rows, each followed by `gap` zero rows (gap = the largest
+      dilation), inside a buffer with `gap` zero rows above and below: a dilated tap is a slice of that
+      buffer (views made once per frame), not a pad and two slices per call;
+    - the residual update writes in place into the buffer; the gated outputs go straight into their
+      columns of the skip layer's input, with no concatenation;
+    - tanh(v) = 2 sigmoid(2 v) - 1 (torch's CPU tanh is ~10-20x slower than its sigmoid): one sigmoid
+      gives s_g and s_v, the layer keeps [s_g, s_g s_v], and the gated output s_g (2 s_v - 1) is folded
+      into the weights that read it ([-W; 2 W]);
+    - the gap rows stay exactly zero: their gate bias is -inf (sigmoid 0, so the gated output is 0) and
+      their other biases 0;
+    - the output layer and the sampler step are one addmm: x <- a x + b (s W + c) is
+      addmm(x, [s, 1], b [W; c], beta=a), with the skip layer's output s given a column of ones.
+
+    Kept over TorchScript (deprecated in torch 2.13) and ONNX Runtime (faster in a side measurement, but
+    an export of tens of seconds at each generation and a runtime and GPU build of its own): plain
+    torch, one code path for CPU and GPU, nothing to compile (README, fast per-frame sampling).
+    """
+
+    def __init__(self, net: EpsNetwork, dim: int):
+        self.net, self.dim = net, dim
+        c, self.layers, self.dilations = net.channels, net.layers, net.dilations
+        self.channels, self.gap = c, max(net.dilations)
+        with torch.no_grad():
+            # The value half of every gate pre-activation doubled: sigmoid(2 v) gives tanh(v).
+            double = torch.cat([torch.ones(c), torch.full((c,), 2.0)]).to(net.input.weight)
+            self.value_scale = double.repeat(self.layers)  # (layers 2C,) over the conditioner's columns
+            self.cond_weight = net.cond_proj.weight.t() * self.value_scale  # (1, layers 2C)
+            self.cond_bias = net.cond_proj.bias * self.value_scale
+            self.input_weight = net.input.weight.t().clone()  # (1, C)
+            self.dilated = [w * double for w in net.dilated]
+            self.residual = [_read_gated(w) for w in net.residual]
+            skip = net.skip.weight.t().split(c)  # (C, C) per layer
+            # The skip layer with one more output, constant 1 on the pose rows (weight 0, bias 1).
+            self.skip_weight = F.pad(torch.cat([_read_gated(w) for w in skip]), (0, 1))  # (layers 2C, C + 1)
+            self.skip_bias = torch.cat([net.skip.bias, net.skip.bias.new_ones(1)])
+            self.output = torch.cat([net.output.weight.t(), net.output.bias[:, None]])  # (C + 1, 1)
+        self.workspaces: dict[int, dict] = {}
+
+    def workspace(self, batch: int, like: torch.Tensor) -> dict:
+        """Buffers and views for `batch` pose vectors, made once per batch size."""
+        if batch in self.workspaces:
+            return self.workspaces[batch]
+        d, gap, c = self.dim, self.gap, self.channels
+        rows = batch * (d + gap)
+        pose = like.new_zeros(batch, d + gap, 1)
+        pose[:, :d] = 1
+        pose = pose.view(rows, 1)
+        buffer = like.new_zeros(rows + 2 * gap, c)
+        y = buffer[gap : gap + rows]
+        gated = like.new_empty(rows, self.layers * 2 * c)
+        gate_mask = like.new_zeros(d + gap, self.layers, 2 * c)
+        gate_mask[d:, :, :c] = -math.inf
+        slots = gated.split(2 * c, dim=1)
+        space = {
+            "rows": rows,
+            "y": y,
+            "taps": [
+                (buffer[gap - k : gap - k + rows], y, buffer[gap + k : gap + k + rows])
+                for k in self.dilations
+            ],
+            "gated": gated,
+            "slots": [(slot, slot[:, :c], slot[:, c:]) for slot in slots],
+            "input_bias": pose * self.net.input.bias.detach(),
+            "skip_bias": pose * self.skip_bias,
+            "gate_mask": gate_mask.view(d + gap, -1),
+        }
+        self.workspaces[batch] = space
+        return space
+
+    def condition(self, h: torch.Tensor, space: dict) -> torch.Tensor:
+        """(B, cond_dim) encoder states -> (layers, rows, 2 C): the conditioner per row (gap rows: -inf)."""
+        up = self.net.cond_upsample(h)  # (B, D)
+        cond = torch.addmm(self.cond_bias, up.reshape(-1, 1), self.cond_weight).view(*up.shape, -1)
+        cond = F.pad(cond, (0, 0, 0, self.gap)) + space["gate_mask"]
+        return cond.view(space["rows"], self.layers, -1).transpose(0, 1).contiguous()
+
+    def step_bias(self, step_emb: torch.Tensor) -> torch.Tensor:
+        """A step embedding (layers, 1, 2 C) with its value halves doubled, to add to `condition`'s."""
+        return step_emb * self.value_scale.view(self.layers, 1, -1)
+
+    def features(self, x: torch.Tensor, bias: tuple[torch.Tensor, ...], space: dict) -> torch.Tensor:
+        """The skip layer's output with its column of ones (rows, C + 1) for noisy poses x (rows, 1)."""
+        y = space["y"]
+        F.leaky_relu_(torch.addmm(space["input_bias"], x, self.input_weight, out=y), 0.4)
+        for i, (taps, (slot, gate, value)) in enumerate(zip(space["taps"], space["slots"], strict=True)):
+            torch.sigmoid(torch.addmm(bias[i], torch.cat(taps, dim=1), self.dilated[i]), out=slot)
+            value.mul_(gate)  # [s_g, s_g s_v]
+            if i < self.layers - 1:
+                y.addmm_(slot, self.residual[i], beta=0.7071067811865476)
+        return F.leaky_relu_(torch.addmm(space["skip_bias"], space["gated"], self.skip_weight), 0.4)
+
+
 class ATEncoder(nn.Module):
-    """DiffMotion's AT-Encoder: an LSTM over the previous pose and the frame's encoded control window."""
+    """DiffMotion's AT-Encoder: an LSTM over the previous pose and the frame's encoded control window.
+
+    Training runs `nn.LSTM` over whole sequences. Generation advances one frame at a time, where
+    `nn.LSTM` costs 2-5 ms a step on a CPU for ~0.3 ms of arithmetic; there a step is the same maths
+    written as one addmm per layer (`step`), on the same weights, laid out once (`step_weights`).
+    """
 
     def __init__(
         self, pose_dim: int, window_dim: int, hidden: int, layers: int, audio_dim: int, dropout: float
@@ -114,6 +224,7 @@ class ATEncoder(nn.Module):
         super().__init__()
         self.audio = nn.Sequential(nn.Linear(window_dim, audio_dim), nn.SiLU(), nn.Dropout(dropout))
         self.lstm = nn.LSTM(pose_dim + audio_dim, hidden, layers, batch_first=True, dropout=dropout)
+        self._step_cache: tuple[tuple, list[tuple[torch.Tensor, torch.Tensor]]] | None = None
 
     def forward(
         self,
@@ -122,7 +233,52 @@ class ATEncoder(nn.Module):
         state: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
         """previous (B, L, D) poses, audio (B, L, A) from `self.audio` -> h (B, L, hidden), state."""
-        return self.lstm(torch.cat([previous, audio], dim=-1), state)
+        x = torch.cat([previous, audio], dim=-1)
+        if x.shape[1] == 1 and not self.training and not torch.is_grad_enabled():
+            h, state = self.step(x[:, 0], state)
+            return h.unsqueeze(1), state
+        return self.lstm(x, state)
+
+    def step_weights(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Per layer: [W_ih | W_hh] transposed (in + hidden, 4 hidden) with the gates reordered (i, f, o, g)
+        and g's doubled, and b_ih + b_hh likewise. Rebuilt whenever a weight changes (an optimizer step, a
+        load, a move)."""
+        params = list(self.lstm.parameters())
+        # _version counts in-place writes: a cached copy of weights trained since is never used.
+        key = tuple((p.data_ptr(), p._version, p.device) for p in params)
+        if self._step_cache is None or self._step_cache[0] != key:
+            hidden = self.lstm.hidden_size
+            order = torch.cat([torch.arange(0, 2 * hidden), torch.arange(3 * hidden, 4 * hidden),
+                               torch.arange(2 * hidden, 3 * hidden)]).to(params[0].device)  # fmt: skip
+            layers = []
+            with torch.no_grad():
+                for k in range(self.lstm.num_layers):
+                    w_ih, w_hh, b_ih, b_hh = (getattr(self.lstm, f"{n}_l{k}") for n in
+                                              ("weight_ih", "weight_hh", "bias_ih", "bias_hh"))  # fmt: skip
+                    scale = torch.ones(4 * hidden, 1, device=w_ih.device)
+                    scale[3 * hidden :] = 2.0  # the g gate's tanh as a sigmoid (see step)
+                    weight = (torch.cat([w_ih, w_hh], dim=1)[order] * scale).t().contiguous()
+                    layers.append((weight, (b_ih + b_hh)[order] * scale[:, 0]))
+            self._step_cache = (key, layers)
+        return self._step_cache[1]
+
+    def step(
+        self, x: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        """One LSTM step of x (B, in): the top layer's h (B, hidden) and the new state, as nn.LSTM's."""
+        hidden = self.lstm.hidden_size
+        if state is None:
+            state = (x.new_zeros(self.lstm.num_layers, x.shape[0], hidden),) * 2
+        hs, cs = [], []
+        for (weight, bias), h, c in zip(self.step_weights(), state[0], state[1], strict=True):
+            # One sigmoid for all four gates: the g rows are doubled in step_weights, tanh(z) = 2 sig(2z) - 1
+            # (torch's CPU tanh is ~10-20x slower than its sigmoid).
+            i, f, o, g = torch.sigmoid(torch.addmm(bias, torch.cat([x, h], dim=1), weight)).chunk(4, dim=1)
+            c = torch.addcmul(f * c - i, i, g, value=2.0)  # f c + i tanh(.)
+            x = torch.addcmul(-o, o, torch.sigmoid(2.0 * c), value=2.0)  # o tanh(c)
+            hs.append(x)
+            cs.append(c)
+        return x, (torch.stack(hs), torch.stack(cs))
 
 
 @dataclass
@@ -135,7 +291,7 @@ class FrameStreams:
 
     previous: torch.Tensor  # (B, 1, D) each stream's last pose, normalised (zeros, the mean pose, at a start)
     state: tuple[torch.Tensor, torch.Tensor] | None  # the LSTM's (h, c), (layers, B, hidden); None: all zero
-    tables: tuple  # the sampler's tables, computed once
+    tables: FrameTables  # the sampler's tables, computed once
 
     @property
     def rows(self) -> int:
@@ -218,31 +374,43 @@ class AutoregressiveDiffusion(MotionModule):
         )
         return F.mse_loss(eps, noise)
 
-    def sampling_tables(self):
-        """The ancestral DDPM steps and the step embeddings, computed once per generation."""
-        steps = step_coefficients(self.diffusion, range(self.diffusion.num_timesteps - 1, -1, -1), eta=1.0)
-        table = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
-        return steps, table
+    def sampling_tables(self, sampler: SamplerChoice | None = None, fused: bool = True) -> FrameTables:
+        """What sampling a frame needs, computed once per generation from the current weights: the
+        sampler's steps (default ancestral DDPM over all N), their step embeddings, and with `fused`
+        the eps network laid out for fewer operations (`FusedEps`; the same numbers as the module)."""
+        steps = (sampler or SamplerChoice()).table(self.diffusion)
+        embeddings = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
+        fused = FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
+        return FrameTables(steps, embeddings, fused)
 
-    def sample_frame(self, h: torch.Tensor, tables, generator: torch.Generator | None) -> torch.Tensor:
-        """One normalised pose per row (B, D) for encoder states h (B, hidden): all N denoising steps."""
-        steps, step_table = tables
+    def sample_frame(
+        self, h: torch.Tensor, tables: FrameTables, generator: torch.Generator | None
+    ) -> torch.Tensor:
+        """One normalised pose per row (B, D) for encoder states h (B, hidden): every step of the sampler."""
+        if tables.fused is not None:
+            return tables.sample_fused(h, generator)
         cond = self.eps_net.condition(h)
 
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-            return self.eps_net(x, step_table[:, t], cond)
+            return self.eps_net(x, tables.embeddings[:, t], cond)
 
         return run_steps(
-            model_fn, self.diffusion, (h.shape[0], self.spec["feature_dim"]), steps, generator=generator
+            model_fn,
+            self.diffusion,
+            (h.shape[0], self.spec["feature_dim"]),
+            tables.steps,
+            generator=generator,
         )
 
     # ------------------------------------------------------------ frame by frame (generation, streaming)
 
     @torch.inference_mode()
-    def start_streams(self, rows: int) -> FrameStreams:
+    def start_streams(
+        self, rows: int, sampler: SamplerChoice | None = None, fused: bool = True
+    ) -> FrameStreams:
         """`rows` streams at their start: zero LSTM state, the mean pose before them, the sampler's tables."""
         previous = torch.zeros(rows, 1, self.spec["feature_dim"], device=self.device)
-        return FrameStreams(previous, None, self.sampling_tables())
+        return FrameStreams(previous, None, self.sampling_tables(sampler, fused))
 
     @torch.inference_mode()
     def advance(
@@ -362,12 +530,15 @@ class DiffMotion(AutoregressiveDiffusion):
         generator: torch.Generator | None = None,
         streams: int = 1,
         on_frame: Callable[[int, int], None] | None = None,
+        sampler: SamplerChoice | None = None,
+        fused: bool = True,
     ) -> torch.Tensor:
         """Poses (B * streams, F, D) in feature units from raw log-mel audio (B, F, M) or (F, M).
 
         Each take is repeated `streams` times (stream k of take b is row b * streams + k), and all rows
         are generated together, frame by frame, carrying the LSTM state. `on_frame(done, total)` is
-        called after every frame (a progress bar).
+        called after every frame (a progress bar). `sampler` draws each frame (default: DDPM over all N
+        trained steps); `fused=False` runs the plain eps module instead of its fused twin (same numbers).
         """
         if audio.ndim == 2:
             audio = audio.unsqueeze(0)
@@ -376,10 +547,49 @@ class DiffMotion(AutoregressiveDiffusion):
         padded = torch.cat([audio[:, :1].expand(-1, past, -1), audio, audio[:, -1:].expand(-1, ahead, -1)], 1)
         audio_emb = self.encoder.audio(self.control_windows(padded))
         rows, frames, dim = audio.shape[0], audio.shape[1], self.spec["feature_dim"]
-        streams = self.start_streams(rows)
+        streams = self.start_streams(rows, sampler, fused)
         poses = audio.new_zeros(rows, frames, dim)
         for f in range(frames):
             poses[:, f] = self.advance(streams, audio_emb[:, f], generator)
             if on_frame is not None:
                 on_frame(f + 1, frames)
         return self.normalizer.denormalize(poses)
+
+
+class FrameTables:
+    """A generation's per-frame sampling constants: the sampler's steps, the embeddings of all trained
+    steps (layers, N, 1, 2 C), and the fused network (None: the plain module and `run_steps`)."""
+
+    def __init__(self, steps: SamplerSteps, embeddings: torch.Tensor, fused: FusedEps | None):
+        self.steps, self.embeddings, self.fused = steps, embeddings, fused
+        if fused is not None:
+            # Per step, the output layer times the update's weights: x <- a x + b out, x0 = px x + po out.
+            self.step_bias = [fused.step_bias(embeddings[:, t]) for t in steps.timesteps]
+            self.update = [fused.output * b for b in steps.out_coef]
+            self.estimate = [fused.output * po for po in steps.x0_out_coef] if any(steps.prev_coef) else None
+
+    def sample_fused(self, h: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+        """The fused twin of `run_steps` over the eps network: the same draws from `generator`."""
+        fused, steps = self.fused, self.steps
+        batch, dim, gap = h.shape[0], fused.dim, fused.gap
+        space = fused.workspace(batch, h)
+        cond = fused.condition(h, space)
+
+        def noise() -> torch.Tensor:  # drawn (B, D) as run_steps draws it, then given its gap rows
+            return F.pad(randn_like(h.new_empty(batch, dim), generator), (0, gap)).view(-1, 1)
+
+        x, x0_prev = noise(), None
+        for k in range(len(steps.timesteps)):
+            features = fused.features(x, (cond + self.step_bias[k]).unbind(0), space)
+            x0 = (
+                None
+                if self.estimate is None
+                else torch.addmm(x, features, self.estimate[k], beta=steps.x0_x_coef[k])
+            )
+            x = torch.addmm(x, features, self.update[k], beta=steps.x_coef[k])
+            if steps.prev_coef[k]:
+                x.add_(x0_prev, alpha=steps.prev_coef[k])
+            x0_prev = x0
+            if steps.sigma[k] > 0:
+                x.add_(noise(), alpha=steps.sigma[k])
+        return x.view(batch, dim + gap)[:, :dim]

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.errors import WalkdiffError
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.motion.path import Polyline
@@ -174,9 +175,12 @@ class PathWalker(AutoregressiveDiffusion):
         frames: int,
         generator: torch.Generator | None = None,
         on_frame: Callable[[int, int], None] | None = None,
+        sampler: SamplerChoice | None = None,
+        fused: bool = True,
     ) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames;
-        `on_frame(done, total)` is called after every frame (a progress bar).
+        `on_frame(done, total)` is called after every frame (a progress bar). `sampler` and `fused` as
+        in `DiffMotion.generate`.
 
         Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
         """
@@ -187,7 +191,7 @@ class PathWalker(AutoregressiveDiffusion):
         progress = np.zeros(rows)
         pace = self.pace(speed)
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
-        streams = self.start_streams(rows)
+        streams = self.start_streams(rows, sampler, fused)
         poses = torch.zeros(rows, frames, dim, device=self.device)
         style = style.to(self.device)
         for f in range(frames):
