@@ -193,6 +193,175 @@ def bench_train(
     return result
 
 
+# The quality bar of the training issue, as ratios to real data scored the same way: style recognised
+# at least 90% as often as in real held-out windows, FMD at most twice the train-vs-held-out floor, foot
+# skating at most 1.2 times real held-out windows'.
+BAR = {"style_acc": ("min", 0.9), "fmd": ("max", 2.0), "skate_ratio": ("max", 1.2)}
+
+
+class _RunClock:
+    """A Lightning callback: wall time since training started, and the time of the training epochs' batch
+    loops alone (not validation, checkpoints or metrics), both per epoch."""
+
+    def __init__(self, evaluator: str | None):
+        import lightning as L
+
+        clock = self
+        self.evaluator = evaluator
+        self.started = self.epoch_started = None
+        self.loop_s = 0.0
+        self.epochs: dict[int, dict] = {}
+
+        class Clock(L.Callback):
+            def setup(cb, trainer, pl_module, stage):
+                metrics = _metrics_callback(trainer)
+                if clock.evaluator is not None:
+                    metrics.evaluator_ckpt = clock.evaluator
+
+            def on_train_start(cb, trainer, pl_module):
+                clock.started = time.perf_counter()
+
+            def on_train_epoch_start(cb, trainer, pl_module):
+                clock.epoch_started = time.perf_counter()
+
+            def end_of_batches(cb, trainer):
+                if clock.epoch_started is not None:
+                    clock.loop_s += time.perf_counter() - clock.epoch_started
+                    clock.epoch_started = None
+
+            def on_validation_start(cb, trainer, pl_module):
+                cb.end_of_batches(trainer)
+
+            def on_train_epoch_end(cb, trainer, pl_module):
+                cb.end_of_batches(trainer)
+                epoch = trainer.current_epoch + 1
+                clock.epochs[epoch] = {
+                    "wall_s": time.perf_counter() - clock.started,
+                    "train_loop_s": clock.loop_s,
+                }
+
+        self.callback = Clock()
+
+
+def _metrics_callback(trainer):
+    from walkdiff.callbacks.metrics import MotionMetrics
+
+    found = [c for c in trainer.callbacks if isinstance(c, MotionMetrics)]
+    if not found:
+        raise WalkdiffError(
+            "the config has no walkdiff.callbacks.metrics.MotionMetrics callback: time to the quality bar "
+            "is read from its measurements"
+        )
+    return found[0]
+
+
+def _bar_rows(history: list[dict], epochs: dict[int, dict], bar: dict[str, float]) -> list[dict]:
+    """Per measurement: epoch, batches, times, each metric against its bar, and whether all three hold."""
+    rows, metrics_s = [], 0.0
+    for measured in history:
+        metrics_s += measured["seconds"]
+        clock = epochs[measured["epoch"]]
+        row = {
+            "epoch": measured["epoch"],
+            "batches": measured["batches"],
+            # Everything since training started except the metric measurements themselves: the
+            # batches, validation, checkpoints and any other callbacks the config has.
+            "training_s": round(clock["wall_s"] - metrics_s, 1),
+            "train_loop_s": round(clock["train_loop_s"], 1),
+            "metrics_s": round(measured["seconds"], 1),
+            "wall_s": round(clock["wall_s"], 1),
+        }
+        for name, (kind, _) in BAR.items():
+            value = measured[name]
+            row[name] = round(value, 4)
+            row[f"{name}_ok"] = value >= bar[name] if kind == "min" else value <= bar[name]
+        row["at_bar"] = all(row[f"{name}_ok"] for name in BAR)
+        rows.append(row)
+    return rows
+
+
+def _first(rows: list[dict], key: str) -> dict | None:
+    """The first row where `key` holds, and the first from which it holds at every later measurement."""
+    first = next((r for r in rows if r[key]), None)
+    stays = None
+    for row in reversed(rows):
+        if not row[key]:
+            break
+        stays = row
+    pick = ("epoch", "batches", "training_s", "train_loop_s", "wall_s")
+    return {
+        "first": None if first is None else {k: first[k] for k in pick},
+        "from_then_on": None if stays is None else {k: stays[k] for k in pick},
+    }
+
+
+def bench_time_to_bar(
+    out: str, config: str = "conf/xia_cpu.yaml", evaluator: str | None = None, repeats: int = 5
+) -> dict:
+    """Trains CONFIG exactly as `walkdiff fit --config CONFIG` does (bounded by its epochs, with its
+    MLflow run and checkpoints) and reads its MotionMetrics measurements against the quality bar.
+
+    The real references are the callback's own numbers for real windows of the test split (as many as
+    it generates, `repeats` draws, averaged): held-out windows scored against the same training
+    windows, by the same evaluator. Writes OUT (JSON): per measurement the epoch, the batches trained,
+    the training time without the measurements (and the batch loops alone), the measurement's own
+    time, each metric against its bar, and the first epoch where all three hold.
+    """
+    from walkdiff.callbacks.checkpoints import mlflow_logger
+    from walkdiff.cli import lightning_cli
+
+    clock = _RunClock(evaluator)
+    load_before = os.getloadavg()
+    cli = lightning_cli(["fit", "--config", config], callbacks=[clock.callback])
+    trainer = cli.trainer
+    metrics = _metrics_callback(trainer)
+    if not metrics.history:
+        raise WalkdiffError(
+            f"the run made no metrics measurement: MotionMetrics measures every {metrics.every_n_epochs} "
+            f"epochs, after a validation (trainer.check_val_every_n_epoch), and it trained "
+            f"{trainer.current_epoch} epochs",
+            path=config,
+        )
+    references = metrics.held_out_reference("test", repeats)
+    real = {name: statistics.fmean(r[name] for r in references) for name in BAR}
+    bar = {name: factor * real[name] for name, (_, factor) in BAR.items()}
+    rows = _bar_rows(metrics.history, clock.epochs, bar)
+    measuring_s = sum(m["seconds"] for m in metrics.history)
+    model = trainer.lightning_module
+    logger = mlflow_logger(trainer)
+    result = {
+        "benchmark": "time_to_bar",
+        "config": config,
+        "evaluator": metrics.evaluator_ckpt,
+        "mlflow_run_id": None if logger is None else logger.run_id,
+        "epochs": trainer.current_epoch,
+        "max_epochs": trainer.max_epochs,
+        "batches": model.batches_done,
+        "batches_per_epoch": trainer.num_training_batches,
+        "metrics": {
+            "every_n_epochs": metrics.every_n_epochs,
+            "num_samples": metrics.num_samples,
+            "sampler": metrics.sampler,
+            "steps": metrics.steps,
+        },
+        "real_held_out": {name: round(value, 4) for name, value in real.items()} | {"repeats": repeats},
+        "bar": {
+            name: {"rule": f"{'>=' if kind == 'min' else '<='} {factor} x real", "value": round(bar[name], 4)}
+            for name, (kind, factor) in BAR.items()
+        },
+        "measurements": rows,
+        "time_to_bar": _first(rows, "at_bar"),
+        "per_criterion": {name: _first(rows, f"{name}_ok") for name in BAR},
+        "training_s": round(clock.epochs[trainer.current_epoch]["wall_s"] - measuring_s, 1),
+        "metrics_s": round(measuring_s, 1),
+        "load_average_before": [round(x, 2) for x in load_before],
+        "load_average_after": [round(x, 2) for x in os.getloadavg()],
+        "machine": machine(),
+    }
+    report(out, result)
+    return result
+
+
 # ---------------------------------------------------------------- sampling
 
 
@@ -663,7 +832,10 @@ def run(args) -> None:
     elif args.what == "data":
         bench_data(args.out, args.dataset, args.root)
     elif args.what == "train":
-        bench_train(args.out, args.config, args.batches)
+        if args.to_bar:
+            bench_time_to_bar(args.out, args.config, args.evaluator, args.repeats)
+        else:
+            bench_train(args.out, args.config, args.batches)
     elif args.what == "sample":
         bench_sample(
             args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, seeds=args.seeds,

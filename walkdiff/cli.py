@@ -26,8 +26,11 @@ PROFILE_HELP = (
 )
 
 
-def lightning_cli(args: list[str] | None) -> None:
-    """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`."""
+def lightning_cli(args: list[str] | None, callbacks: list | None = None):
+    """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`.
+
+    `callbacks` join the config's (`walkdiff bench train --to-bar` times a run with them); returns the CLI.
+    """
     from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
     from walkdiff.tracking import absolute_uri, check_tracking_uri
@@ -49,6 +52,7 @@ def lightning_cli(args: list[str] | None) -> None:
 
         def before_fit(self) -> None:
             open_run(self.trainer)
+            self.trainer.callbacks.extend(callbacks or [])
 
         def after_fit(self) -> None:
             report_fit(self.trainer)
@@ -71,7 +75,7 @@ def lightning_cli(args: list[str] | None) -> None:
 
     import lightning as L
 
-    WalkdiffCLI(
+    return WalkdiffCLI(
         L.LightningModule,
         L.LightningDataModule,  # MotionDataModule (walking) or SpeechDataModule (gestures), per config
         subclass_mode_model=True,
@@ -426,6 +430,15 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True)
     b.add_argument("--config", default="conf/xia_cpu.yaml")
     b.add_argument("--batches", type=count(1), default=30, help="batches timed per repeat")
+    b.add_argument(
+        "--to-bar", action="store_true",
+        help="train the config to its epoch bound and report when its metrics reach the quality bar",
+    )  # fmt: skip
+    b.add_argument("--evaluator", default=None, help="with --to-bar: evaluator for the metrics callback "
+                   "(default: the config's)")  # fmt: skip
+    b.add_argument(
+        "--repeats", type=count(1), default=5, help="with --to-bar: draws of real held-out windows"
+    )
     b = bench.add_parser("gesture", help="DiffMotion seconds per frame (1 stream, N=100/500), 16 streams")
     b.add_argument("--out", required=True)
     b.add_argument(
