@@ -172,8 +172,11 @@ class StyledMotionDiffusion(MotionModule):
         """World joint positions (B, F, J, 3) of raw features."""
         if self.skeleton is None:
             raise WalkdiffError("the position losses need the skeleton: train through `walkdiff fit`")
-        offsets = torch.as_tensor(self.skeleton.offsets, dtype=raw.dtype, device=raw.device)
-        return features_to_positions(raw, offsets, self.skeleton.parents)
+        offsets = torch.as_tensor(self.skeleton.offsets, dtype=torch.float32, device=raw.device)
+        # In float32 under bf16 autocast too: FK chains every bone's rotation, and the velocity and foot
+        # terms difference neighbouring frames, which bf16's 3 digits would drown.
+        with torch.autocast(raw.device.type, enabled=False):
+            return features_to_positions(raw.float(), offsets, self.skeleton.parents)
 
     def _velocities(self, positions: torch.Tensor) -> torch.Tensor:
         """Joint velocities (B, F-1, J, 3) of positions, in contact speed thresholds."""
@@ -210,6 +213,7 @@ class StyledMotionDiffusion(MotionModule):
         self, batch: dict, out, target, x0_hat, t, adversarial: bool
     ) -> dict[str, torch.Tensor]:
         weight = self.diffusion.alphas_cumprod[t]  # (B,), see the module docstring
+        out, x0_hat = out.float(), x0_hat.float()  # the losses in float32 under bf16 autocast
         raw_hat = self.normalizer.denormalize(x0_hat)
         raw = self.normalizer.denormalize(batch["features"])
         contacts = self.layout.contacts
