@@ -16,6 +16,7 @@ import synthetic
 import torch
 
 from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.errors import WalkdiffError
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion, TrainingDiverged
 
 TINY = dict(
@@ -320,7 +321,6 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
     trainer.save_checkpoint(evaluator)
 
     monkeypatch.chdir(tmp_path)  # the config's mlruns/ and checkpoints/ land here
-    monkeypatch.setattr("sys.argv", ["walkdiff"])
     metrics = {
         "class_path": "walkdiff.callbacks.metrics.MotionMetrics",
         # --evaluator replaces the config's evaluator: this one does not exist
@@ -350,3 +350,18 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
     assert (result["time_to_bar"]["first"] or {}).get("epoch") == first
     run = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlruns/mlflow.db").get_run(result["mlflow_run_id"])
     assert run.info.status == "FINISHED" and "metrics/fmd" in run.data.metrics
+
+
+def test_bench_train_times_a_config_in_its_own_precision(tiny_root, tmp_path):
+    from walkdiff.bench import bench_train
+
+    config = tmp_path / "bf16.yaml"
+    text = probes.tiny_fit_config(tiny_root, "bf16", epochs=1, batches=4, callbacks=[])
+    config.write_text(text.replace("  devices: 1\n", "  devices: 1\n  precision: bf16-mixed\n"))
+    result = bench_train(str(tmp_path / "train.json"), str(config), batches=2, warmup=1, repeats=1)
+    assert result["precision"] == "bf16-mixed" and result["batch_size"] == 8
+    assert result["lightning_windows_per_s_median"] > 0 and result["plain_windows_per_s_median"] > 0
+    assert json.loads((tmp_path / "train.json").read_text())["precision"] == "bf16-mixed"
+    config.write_text(text.replace("  devices: 1\n", "  devices: 1\n  precision: 16-mixed\n"))
+    with pytest.raises(WalkdiffError, match="trainer.precision"):
+        bench_train(str(tmp_path / "other.json"), str(config), batches=2, warmup=1, repeats=1)

@@ -11,6 +11,7 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import torch
@@ -95,6 +96,18 @@ def _config_model_and_data(config: str):
     return model, dm
 
 
+def _config_precision(config: str) -> str:
+    """The config's trainer.precision (Lightning's default 32-true when it names none)."""
+    from omegaconf import OmegaConf
+
+    precision = str(OmegaConf.load(config).get("trainer", {}).get("precision", "32-true"))
+    if precision not in ("32-true", "32", "bf16-mixed"):
+        raise WalkdiffError(
+            f"trainer.precision: bench train times 32-true or bf16-mixed, not {precision!r}", path=config
+        )
+    return precision
+
+
 class _BatchClock:
     """Wall time of training batches [skip, skip + count) as Lightning runs them."""
 
@@ -120,7 +133,8 @@ def _lightning_seconds(config: str, batches: int, warmup: int) -> float:
     model.hparams.adv_warmup_batches = 0  # time the full step: D + G with the adversarial term
     clock = _BatchClock(warmup)
     trainer = L.Trainer(
-        accelerator="cpu", devices=1, precision="32-true", max_epochs=1, limit_train_batches=warmup + batches,
+        accelerator="cpu", devices=1, precision=_config_precision(config), max_epochs=1,
+        limit_train_batches=warmup + batches,
         limit_val_batches=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
         enable_model_summary=False, callbacks=[clock.callback],
     )  # fmt: skip
@@ -131,6 +145,8 @@ def _lightning_seconds(config: str, batches: int, warmup: int) -> float:
 def _plain_seconds(config: str, batches: int, warmup: int) -> float:
     """The same networks, losses, optimizers, clipping and EMA in a hand-written loop."""
     model, dm = _config_model_and_data(config)
+    # bf16-mixed as Lightning runs it: the forward passes and losses under autocast, float32 weights.
+    autocast = torch.autocast("cpu", torch.bfloat16, enabled=_config_precision(config) == "bf16-mixed")
     dm.setup("fit")
     model.normalizer.load_state_dict(dm.normalizer.state_dict())
     model.profile = dm.profile  # the FK losses need the skeleton (Lightning's setup sets it too)
@@ -144,14 +160,17 @@ def _plain_seconds(config: str, batches: int, warmup: int) -> float:
             start = time.perf_counter()
         if i == warmup + batches:
             break
-        out, target, x0_hat, t = model.denoise(batch, cond_drop=h.cond_drop)
-        d_loss = model.discriminator_loss(batch, x0_hat, t)["d"]
+        with autocast:
+            out, target, x0_hat, t = model.denoise(batch, cond_drop=h.cond_drop)
+            d_loss = model.discriminator_loss(batch, x0_hat, t)["d"]
         opt_d.zero_grad(set_to_none=True)
         d_loss.backward()
         torch.nn.utils.clip_grad_norm_(model.discriminator.parameters(), h.grad_clip)
         opt_d.step()
         sched_d.step()
-        total = model.total_loss(model.generator_losses(batch, out, target, x0_hat, t, adversarial=True))
+        with autocast:
+            losses = model.generator_losses(batch, out, target, x0_hat, t, adversarial=True)
+            total = model.total_loss(losses)
         opt_g.zero_grad(set_to_none=True)
         total.backward()
         torch.nn.utils.clip_grad_norm_(model.denoiser.parameters(), h.grad_clip)
@@ -179,6 +198,7 @@ def bench_train(
         "config": config,
         "batch_size": batch_size,
         "window": dm.hparams.window,
+        "precision": _config_precision(config),
         "batches_timed": batches,
         "repeats": repeats,
         "lightning_s": [round(x, 3) for x in lightning_s],
@@ -312,7 +332,9 @@ def bench_time_to_bar(
 
     clock = _RunClock(evaluator)
     load_before = os.getloadavg()
-    cli = lightning_cli(["fit", "--config", config], callbacks=[clock.callback])
+    # LightningCLI warns when it is given args and sys.argv holds more (this bench's own options).
+    with mock.patch.object(sys, "argv", sys.argv[:1]):
+        cli = lightning_cli(["fit", "--config", config], callbacks=[clock.callback])
     trainer = cli.trainer
     metrics = _metrics_callback(trainer)
     if not metrics.history:
