@@ -328,18 +328,29 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
                       "sampler": "ddim", "steps": 2, "batch_size": 16},
     }  # fmt: skip
     config = tmp_path / "bar.yaml"
-    config.write_text(probes.tiny_fit_config(tiny_root, "bar", epochs=2, batches=3, callbacks=[metrics]))
-    out = tmp_path / "bar.json"
+    # What the report said while the run was still training (after the first measurement).
+    copy = {
+        "class_path": "probes.CopyAtEpochStart",
+        "init_args": {"source": "bar.json", "target": "early.json", "epoch": 1},
+    }
+    config.write_text(
+        probes.tiny_fit_config(tiny_root, "bar", epochs=2, batches=3, callbacks=[metrics, copy])
+    )
+    out = Path("bar.json")
     args = ["bench", "train", "--to-bar", "--config", str(config), "--evaluator", str(evaluator)]
     assert main(args + ["--repeats", "2", "--out", str(out)]) == 0
+    early = json.loads((tmp_path / "early.json").read_text())
+    assert not early["finished"] and [r["epoch"] for r in early["measurements"]] == [1]
 
     result = json.loads(out.read_text())
+    assert result["finished"]
     rows = result["measurements"]
     assert [(r["epoch"], r["batches"]) for r in rows] == [(1, 3), (2, 6)]
     assert result["epochs"] == result["max_epochs"] == 2 and result["batches"] == 6
     assert all(r["metrics_s"] > 0 and 0 < r["train_loop_s"] <= r["training_s"] < r["wall_s"] for r in rows)
     assert rows[0]["training_s"] < rows[1]["training_s"]
     assert result["training_s"] + result["metrics_s"] >= rows[-1]["wall_s"] - 0.1
+    assert 0 < result["train_loop_s"] <= result["training_s"]
     for name, (kind, factor) in BAR.items():
         bar = result["bar"][name]["value"]
         assert bar == pytest.approx(factor * result["real_held_out"][name], abs=1e-3)

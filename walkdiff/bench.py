@@ -219,48 +219,109 @@ def bench_train(
 BAR = {"style_acc": ("min", 0.9), "fmd": ("max", 2.0), "skate_ratio": ("max", 1.2)}
 
 
-class _RunClock:
-    """A Lightning callback: wall time since training started, and the time of the training epochs' batch
-    loops alone (not validation, checkpoints or metrics), both per epoch."""
+class _TimeToBar:
+    """A Lightning callback timing a run (wall time since training started, and the training epochs'
+    batch loops alone) that rewrites the time-to-bar report after every MotionMetrics measurement, so an
+    interrupted run still says how far it got."""
 
-    def __init__(self, evaluator: str | None):
+    def __init__(self, out: str, config: str, evaluator: str | None, repeats: int):
         import lightning as L
 
-        clock = self
-        self.evaluator = evaluator
+        self.out, self.config, self.evaluator, self.repeats = out, config, evaluator, repeats
         self.started = self.epoch_started = None
         self.loop_s = 0.0
-        self.epochs: dict[int, dict] = {}
+        self.at_validation: dict[int, dict] = {}  # epoch -> times when its validation (and metrics) ended
+        self.real: dict[str, float] | None = None
+        self.load_before = os.getloadavg()
+        bench = self
 
-        class Clock(L.Callback):
+        class Callback(L.Callback):
             def setup(cb, trainer, pl_module, stage):
-                metrics = _metrics_callback(trainer)
-                if clock.evaluator is not None:
-                    metrics.evaluator_ckpt = clock.evaluator
+                if bench.evaluator is not None:
+                    _metrics_callback(trainer).evaluator_ckpt = bench.evaluator
 
             def on_train_start(cb, trainer, pl_module):
-                clock.started = time.perf_counter()
+                bench.started = time.perf_counter()
 
             def on_train_epoch_start(cb, trainer, pl_module):
-                clock.epoch_started = time.perf_counter()
-
-            def end_of_batches(cb, trainer):
-                if clock.epoch_started is not None:
-                    clock.loop_s += time.perf_counter() - clock.epoch_started
-                    clock.epoch_started = None
+                bench.epoch_started = time.perf_counter()
 
             def on_validation_start(cb, trainer, pl_module):
-                cb.end_of_batches(trainer)
+                bench.end_of_batches()
+
+            def on_validation_end(cb, trainer, pl_module):
+                if trainer.sanity_checking:
+                    return
+                bench.at_validation[trainer.current_epoch + 1] = bench.times()
+                metrics = _metrics_callback(trainer)
+                if metrics.history and metrics.history[-1]["epoch"] == trainer.current_epoch + 1:
+                    bench.report(trainer, finished=False)
 
             def on_train_epoch_end(cb, trainer, pl_module):
-                cb.end_of_batches(trainer)
-                epoch = trainer.current_epoch + 1
-                clock.epochs[epoch] = {
-                    "wall_s": time.perf_counter() - clock.started,
-                    "train_loop_s": clock.loop_s,
-                }
+                bench.end_of_batches()
 
-        self.callback = Clock()
+        self.callback = Callback()
+
+    def end_of_batches(self) -> None:
+        if self.epoch_started is not None:
+            self.loop_s += time.perf_counter() - self.epoch_started
+            self.epoch_started = None
+
+    def times(self) -> dict:
+        return {"wall_s": time.perf_counter() - self.started, "train_loop_s": self.loop_s}
+
+    def report(self, trainer, finished: bool) -> dict:
+        from walkdiff.callbacks.checkpoints import mlflow_logger
+
+        metrics = _metrics_callback(trainer)
+        if self.real is None:  # once, with the evaluator the first measurement loaded
+            references = metrics.held_out_reference("test", self.repeats)
+            self.real = {name: statistics.fmean(r[name] for r in references) for name in BAR}
+        bar = {name: factor * self.real[name] for name, (_, factor) in BAR.items()}
+        rows = _bar_rows(metrics.history, self.at_validation, bar)
+        measuring_s = sum(m["seconds"] for m in metrics.history)
+        now = self.times()
+        logger = mlflow_logger(trainer)
+        result = {
+            "benchmark": "time_to_bar",
+            "finished": finished,  # false: written after a measurement of a run still training
+            "config": self.config,
+            "evaluator": metrics.evaluator_ckpt,
+            "mlflow_run_id": None if logger is None else logger.run_id,
+            "epochs": trainer.current_epoch + (0 if finished else 1),
+            "max_epochs": trainer.max_epochs,
+            "batches": trainer.lightning_module.batches_done,
+            "batches_per_epoch": trainer.num_training_batches,
+            "metrics": {
+                "every_n_epochs": metrics.every_n_epochs,
+                "num_samples": metrics.num_samples,
+                "sampler": metrics.sampler,
+                "steps": metrics.steps,
+            },
+            "real_held_out": {name: round(value, 4) for name, value in self.real.items()}
+            | {"repeats": self.repeats},
+            "bar": {
+                name: {
+                    "rule": f"{'>=' if kind == 'min' else '<='} {factor} x real",
+                    "value": round(bar[name], 4),
+                }
+                for name, (kind, factor) in BAR.items()
+            },
+            "measurements": rows,
+            "time_to_bar": _first(rows, "at_bar"),
+            "per_criterion": {name: _first(rows, f"{name}_ok") for name in BAR},
+            "training_s": round(now["wall_s"] - measuring_s, 1),
+            "train_loop_s": round(now["train_loop_s"], 1),
+            "metrics_s": round(measuring_s, 1),
+            "load_average_before": [round(x, 2) for x in self.load_before],
+            "load_average_now": [round(x, 2) for x in os.getloadavg()],
+            "machine": machine(),
+        }
+        if finished:
+            report(self.out, result)
+        else:
+            write_json(self.out, result)
+        return result
 
 
 def _metrics_callback(trainer):
@@ -275,12 +336,12 @@ def _metrics_callback(trainer):
     return found[0]
 
 
-def _bar_rows(history: list[dict], epochs: dict[int, dict], bar: dict[str, float]) -> list[dict]:
+def _bar_rows(history: list[dict], times: dict[int, dict], bar: dict[str, float]) -> list[dict]:
     """Per measurement: epoch, batches, times, each metric against its bar, and whether all three hold."""
     rows, metrics_s = [], 0.0
     for measured in history:
         metrics_s += measured["seconds"]
-        clock = epochs[measured["epoch"]]
+        clock = times[measured["epoch"]]
         row = {
             "epoch": measured["epoch"],
             "batches": measured["batches"],
@@ -323,18 +384,17 @@ def bench_time_to_bar(
 
     The real references are the callback's own numbers for real windows of the test split (as many as
     it generates, `repeats` draws, averaged): held-out windows scored against the same training
-    windows, by the same evaluator. Writes OUT (JSON): per measurement the epoch, the batches trained,
-    the training time without the measurements (and the batch loops alone), the measurement's own
-    time, each metric against its bar, and the first epoch where all three hold.
+    windows, by the same evaluator. Writes OUT (JSON) after every measurement and at the end: per
+    measurement the epoch, the batches trained, the training time without the measurements (and the
+    batch loops alone), the measurement's own time, each metric against its bar, and the first epoch
+    where all three hold.
     """
-    from walkdiff.callbacks.checkpoints import mlflow_logger
     from walkdiff.cli import lightning_cli
 
-    clock = _RunClock(evaluator)
-    load_before = os.getloadavg()
+    bench = _TimeToBar(out, config, evaluator, repeats)
     # LightningCLI warns when it is given args and sys.argv holds more (this bench's own options).
     with mock.patch.object(sys, "argv", sys.argv[:1]):
-        cli = lightning_cli(["fit", "--config", config], callbacks=[clock.callback])
+        cli = lightning_cli(["fit", "--config", config], callbacks=[bench.callback])
     trainer = cli.trainer
     metrics = _metrics_callback(trainer)
     if not metrics.history:
@@ -344,44 +404,7 @@ def bench_time_to_bar(
             f"{trainer.current_epoch} epochs",
             path=config,
         )
-    references = metrics.held_out_reference("test", repeats)
-    real = {name: statistics.fmean(r[name] for r in references) for name in BAR}
-    bar = {name: factor * real[name] for name, (_, factor) in BAR.items()}
-    rows = _bar_rows(metrics.history, clock.epochs, bar)
-    measuring_s = sum(m["seconds"] for m in metrics.history)
-    model = trainer.lightning_module
-    logger = mlflow_logger(trainer)
-    result = {
-        "benchmark": "time_to_bar",
-        "config": config,
-        "evaluator": metrics.evaluator_ckpt,
-        "mlflow_run_id": None if logger is None else logger.run_id,
-        "epochs": trainer.current_epoch,
-        "max_epochs": trainer.max_epochs,
-        "batches": model.batches_done,
-        "batches_per_epoch": trainer.num_training_batches,
-        "metrics": {
-            "every_n_epochs": metrics.every_n_epochs,
-            "num_samples": metrics.num_samples,
-            "sampler": metrics.sampler,
-            "steps": metrics.steps,
-        },
-        "real_held_out": {name: round(value, 4) for name, value in real.items()} | {"repeats": repeats},
-        "bar": {
-            name: {"rule": f"{'>=' if kind == 'min' else '<='} {factor} x real", "value": round(bar[name], 4)}
-            for name, (kind, factor) in BAR.items()
-        },
-        "measurements": rows,
-        "time_to_bar": _first(rows, "at_bar"),
-        "per_criterion": {name: _first(rows, f"{name}_ok") for name in BAR},
-        "training_s": round(clock.epochs[trainer.current_epoch]["wall_s"] - measuring_s, 1),
-        "metrics_s": round(measuring_s, 1),
-        "load_average_before": [round(x, 2) for x in load_before],
-        "load_average_after": [round(x, 2) for x in os.getloadavg()],
-        "machine": machine(),
-    }
-    report(out, result)
-    return result
+    return bench.report(trainer, finished=True)
 
 
 # ---------------------------------------------------------------- sampling
