@@ -372,6 +372,7 @@ def test_bench_train_times_a_config_in_its_own_precision(tiny_root, tmp_path):
     result = bench_train(str(tmp_path / "train.json"), str(config), batches=2, warmup=1, repeats=1)
     assert result["precision"] == "bf16-mixed" and result["batch_size"] == 8
     assert result["lightning_windows_per_s_median"] > 0 and result["plain_windows_per_s_median"] > 0
+    assert result["cpu_seconds_per_batch_median"] > 0
     assert json.loads((tmp_path / "train.json").read_text())["precision"] == "bf16-mixed"
     config.write_text(text.replace("  devices: 1\n", "  devices: 1\n  precision: 16-mixed\n"))
     with pytest.raises(WalkdiffError, match="trainer.precision"):

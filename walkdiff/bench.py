@@ -109,7 +109,7 @@ def _config_precision(config: str) -> str:
 
 
 class _BatchClock:
-    """Wall time of training batches [skip, skip + count) as Lightning runs them."""
+    """Wall and process CPU time of training batches [skip, skip + count) as Lightning runs them."""
 
     def __init__(self, skip: int):
         import lightning as L
@@ -117,16 +117,17 @@ class _BatchClock:
         class Clock(L.Callback):
             def on_train_batch_start(cb, trainer, pl_module, batch, batch_idx):
                 if batch_idx == skip:
-                    self.start = time.perf_counter()
+                    self.start, self.cpu_start = time.perf_counter(), time.process_time()
 
             def on_train_batch_end(cb, trainer, pl_module, outputs, batch, batch_idx):
-                self.end = time.perf_counter()
+                self.end, self.cpu_end = time.perf_counter(), time.process_time()
 
         self.callback = Clock()
-        self.start = self.end = 0.0
+        self.start = self.end = self.cpu_start = self.cpu_end = 0.0
 
 
-def _lightning_seconds(config: str, batches: int, warmup: int) -> float:
+def _lightning_seconds(config: str, batches: int, warmup: int) -> tuple[float, float]:
+    """(wall seconds, process CPU seconds) of `batches` training batches under Lightning."""
     import lightning as L
 
     model, dm = _config_model_and_data(config)
@@ -139,7 +140,7 @@ def _lightning_seconds(config: str, batches: int, warmup: int) -> float:
         enable_model_summary=False, callbacks=[clock.callback],
     )  # fmt: skip
     trainer.fit(model, dm)
-    return clock.end - clock.start
+    return clock.end - clock.start, clock.cpu_end - clock.cpu_start
 
 
 def _plain_seconds(config: str, batches: int, warmup: int) -> float:
@@ -186,10 +187,12 @@ def bench_train(
     """Training windows/s of a config under Lightning, and the same step in a plain PyTorch loop."""
     _, dm = _config_model_and_data(config)
     batch_size = dm.hparams.batch_size
-    lightning_s, plain_s = [], []
+    lightning_s, lightning_cpu_s, plain_s = [], [], []
     # interleaved, so both see the same machine load
     for _ in progress(range(repeats), desc="bench train", unit="repeat"):
-        lightning_s.append(_lightning_seconds(config, batches, warmup))
+        wall, cpu = _lightning_seconds(config, batches, warmup)
+        lightning_s.append(wall)
+        lightning_cpu_s.append(cpu)
         plain_s.append(_plain_seconds(config, batches, warmup))
     lightning_rate = batches * batch_size / statistics.median(lightning_s)
     plain_rate = batches * batch_size / statistics.median(plain_s)
@@ -207,6 +210,10 @@ def bench_train(
         "plain_windows_per_s_median": round(plain_rate, 1),
         "lightning_over_plain_ratio": round(lightning_rate / plain_rate, 3),
         "seconds_per_batch_median": round(statistics.median(lightning_s) / batches, 3),
+        # CPU seconds of all torch threads: on a busy machine near what the batches would take on a
+        # quiet one with one thread, where wall time grows with the load.
+        "cpu_seconds_per_batch_median": round(statistics.median(lightning_cpu_s) / batches, 3),
+        "load_average": [round(x, 2) for x in os.getloadavg()],
         "machine": machine(),
     }
     report(out, result)
