@@ -334,16 +334,16 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
         "init_args": {"source": "bar.json", "target": "early.json", "epoch": 1},
     }
     config.write_text(
-        probes.tiny_fit_config(tiny_root, "bar", epochs=2, batches=3, callbacks=[metrics, copy])
+        probes.tiny_fit_config(tiny_root, "bar", epochs=5, batches=3, callbacks=[metrics, copy])
     )
     out = Path("bar.json")
     args = ["bench", "train", "--to-bar", "--config", str(config), "--evaluator", str(evaluator)]
-    assert main(args + ["--repeats", "2", "--out", str(out)]) == 0
+    assert main(args + ["--repeats", "2", "--out", str(out), "--", "--trainer.max_epochs", "2"]) == 0
     early = json.loads((tmp_path / "early.json").read_text())
     assert not early["finished"] and [r["epoch"] for r in early["measurements"]] == [1]
 
     result = json.loads(out.read_text())
-    assert result["finished"]
+    assert result["finished"] and result["fit_args"] == ["--trainer.max_epochs", "2"]
     rows = result["measurements"]
     assert [(r["epoch"], r["batches"]) for r in rows] == [(1, 3), (2, 6)]
     assert result["epochs"] == result["max_epochs"] == 2 and result["batches"] == 6

@@ -231,10 +231,11 @@ class _TimeToBar:
     batch loops alone) that rewrites the time-to-bar report after every MotionMetrics measurement, so an
     interrupted run still says how far it got."""
 
-    def __init__(self, out: str, config: str, evaluator: str | None, repeats: int):
+    def __init__(self, out: str, config: str, evaluator: str | None, repeats: int, fit_args: list[str]):
         import lightning as L
 
         self.out, self.config, self.evaluator, self.repeats = out, config, evaluator, repeats
+        self.fit_args = fit_args
         self.started = self.epoch_started = None
         self.loop_s = 0.0
         self.at_validation: dict[int, dict] = {}  # epoch -> times when its validation (and metrics) ended
@@ -293,6 +294,7 @@ class _TimeToBar:
             "benchmark": "time_to_bar",
             "finished": finished,  # false: written after a measurement of a run still training
             "config": self.config,
+            "fit_args": self.fit_args,
             "evaluator": metrics.evaluator_ckpt,
             "mlflow_run_id": None if logger is None else logger.run_id,
             "epochs": trainer.current_epoch + (0 if finished else 1),
@@ -384,7 +386,11 @@ def _first(rows: list[dict], key: str) -> dict | None:
 
 
 def bench_time_to_bar(
-    out: str, config: str = "conf/xia_cpu.yaml", evaluator: str | None = None, repeats: int = 5
+    out: str,
+    config: str = "conf/xia_cpu.yaml",
+    evaluator: str | None = None,
+    repeats: int = 5,
+    fit_args: list[str] | tuple[str, ...] = (),
 ) -> dict:
     """Trains CONFIG exactly as `walkdiff fit --config CONFIG` does (bounded by its epochs, with its
     MLflow run and checkpoints) and reads its MotionMetrics measurements against the quality bar.
@@ -398,10 +404,10 @@ def bench_time_to_bar(
     """
     from walkdiff.cli import lightning_cli
 
-    bench = _TimeToBar(out, config, evaluator, repeats)
+    bench = _TimeToBar(out, config, evaluator, repeats, list(fit_args))
     # LightningCLI warns when it is given args and sys.argv holds more (this bench's own options).
     with mock.patch.object(sys, "argv", sys.argv[:1]):
-        cli = lightning_cli(["fit", "--config", config], callbacks=[bench.callback])
+        cli = lightning_cli(["fit", "--config", config, *fit_args], callbacks=[bench.callback])
     trainer = cli.trainer
     metrics = _metrics_callback(trainer)
     if not metrics.history:
@@ -885,7 +891,11 @@ def run(args) -> None:
         bench_data(args.out, args.dataset, args.root)
     elif args.what == "train":
         if args.to_bar:
-            bench_time_to_bar(args.out, args.config, args.evaluator, args.repeats)
+            bench_time_to_bar(args.out, args.config, args.evaluator, args.repeats, args.fit_args)
+        elif args.fit_args:
+            raise WalkdiffError(
+                f"bench train takes fit options only with --to-bar: {' '.join(args.fit_args)}"
+            )
         else:
             bench_train(args.out, args.config, args.batches)
     elif args.what == "sample":

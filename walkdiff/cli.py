@@ -434,11 +434,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--to-bar", action="store_true",
         help="train the config to its epoch bound and report when its metrics reach the quality bar",
     )  # fmt: skip
-    b.add_argument("--evaluator", default=None, help="with --to-bar: evaluator for the metrics callback "
-                   "(default: the config's)")  # fmt: skip
+    b.add_argument(
+        "--evaluator",
+        default=None,
+        help="with --to-bar: the metrics callback's evaluator (default: the config's)",
+    )
     b.add_argument(
         "--repeats", type=count(1), default=5, help="with --to-bar: draws of real held-out windows"
     )
+    b.add_argument(
+        "fit_args", nargs="*", metavar="-- FIT_OPTION",
+        help="with --to-bar, after --: `walkdiff fit` overrides of the config (-- --model.lr 1e-3)",
+    )  # fmt: skip
     b = bench.add_parser("gesture", help="DiffMotion seconds per frame (1 stream, N=100/500), 16 streams")
     b.add_argument("--out", required=True)
     b.add_argument(
