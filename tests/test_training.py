@@ -215,6 +215,10 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
         [0.0, 1.0, 0.0, -1.0, 0.0, 0.0]
     )
     assert losses(model.normalizer.normalize(bent))["position"].item() > 0.1
+    # Under bf16 autocast (trainer.precision bf16-mixed) the forward kinematics stay float32, exactly.
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under_autocast = model._positions(bent)
+    assert under_autocast.dtype == torch.float32 and torch.equal(under_autocast, model._positions(bent))
 
 
 def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_root, tmp_path, monkeypatch):
