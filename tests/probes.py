@@ -91,3 +91,15 @@ data:
     num_workers: 0
     preprocess_workers: 1
 """
+
+
+class CopyAtEpochStart(L.Callback):
+    """Copies `source` (when it exists) to `target` as epoch `epoch` (0-based) starts: what a file said
+    while the run was still training."""
+
+    def __init__(self, source: str, target: str, epoch: int):
+        self.source, self.target, self.epoch = Path(source), Path(target), epoch
+
+    def on_train_epoch_start(self, trainer, pl_module):
+        if trainer.current_epoch == self.epoch and self.source.exists():
+            self.target.write_bytes(self.source.read_bytes())

@@ -16,6 +16,7 @@ import synthetic
 import torch
 
 from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.errors import WalkdiffError
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion, TrainingDiverged
 
 TINY = dict(
@@ -214,6 +215,10 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
         [0.0, 1.0, 0.0, -1.0, 0.0, 0.0]
     )
     assert losses(model.normalizer.normalize(bent))["position"].item() > 0.1
+    # Under bf16 autocast (trainer.precision bf16-mixed) the forward kinematics stay float32, exactly.
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under_autocast = model._positions(bent)
+    assert under_autocast.dtype == torch.float32 and torch.equal(under_autocast, model._positions(bent))
 
 
 def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_root, tmp_path, monkeypatch):
@@ -270,3 +275,109 @@ def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_p
     assert f"moved the earlier {old}" in capsys.readouterr().err
     _point(old, str(target))  # a link is simply replaced
     assert len(list(tmp_path.glob("earlier-*"))) == 1
+
+
+def test_bar_rows_find_the_first_epoch_at_bar_and_the_one_from_which_it_stays():
+    from walkdiff.bench import _bar_rows, _first
+
+    bar = {"style_acc": 0.8, "fmd": 10.0, "skate_ratio": 0.2}
+    values = [(0.5, 50.0, 0.1), (0.9, 9.0, 0.1), (0.9, 11.0, 0.1), (0.9, 8.0, 0.2), (1.0, 7.0, 0.15)]
+    history = [
+        {
+            "epoch": 2 * (i + 1),
+            "batches": 10 * (i + 1),
+            "seconds": 1.0,
+            "style_acc": s,
+            "fmd": f,
+            "skate_ratio": k,
+        }
+        for i, (s, f, k) in enumerate(values)
+    ]
+    epochs = {2 * (i + 1): {"wall_s": 5.0 * (i + 1), "train_loop_s": 3.0 * (i + 1)} for i in range(5)}
+    rows = _bar_rows(history, epochs, bar)
+    assert [r["at_bar"] for r in rows] == [False, True, False, True, True]  # 11 > 10; 0.2 <= 0.2 holds
+    assert [r["training_s"] for r in rows] == [4.0, 8.0, 12.0, 16.0, 20.0]  # wall minus the measurements
+    found = _first(rows, "at_bar")
+    assert found["first"]["epoch"] == 4 and found["from_then_on"]["epoch"] == 8
+    assert _first(rows, "fmd_ok")["from_then_on"]["epoch"] == 8
+    assert _first(rows[:1], "at_bar") == {"first": None, "from_then_on": None}
+
+
+def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path, monkeypatch):
+    """`walkdiff bench train --to-bar` on a tiny config: its measurements, their times and the bar."""
+    from mlflow import MlflowClient
+
+    from walkdiff.bench import BAR
+    from walkdiff.cli import main
+    from walkdiff.models.evaluator import MotionEvaluator
+
+    L.seed_everything(0)
+    dm = MotionDataModule(
+        root=str(tiny_root), cache_dir=str(tiny_root / "cache"), contents="all", batch_size=8, window=24,
+        preprocess_workers=1,
+    )  # fmt: skip
+    trainer = L.Trainer(
+        accelerator="cpu", max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
+    )  # fmt: skip
+    trainer.fit(MotionEvaluator(dm.spec, hidden=16, embed_dim=8, blocks=1), dm)
+    evaluator = tmp_path / "evaluator.ckpt"
+    trainer.save_checkpoint(evaluator)
+
+    monkeypatch.chdir(tmp_path)  # the config's mlruns/ and checkpoints/ land here
+    metrics = {
+        "class_path": "walkdiff.callbacks.metrics.MotionMetrics",
+        # --evaluator replaces the config's evaluator: this one does not exist
+        "init_args": {"evaluator_ckpt": "missing.ckpt", "every_n_epochs": 1, "num_samples": 16,
+                      "sampler": "ddim", "steps": 2, "batch_size": 16},
+    }  # fmt: skip
+    config = tmp_path / "bar.yaml"
+    # What the report said while the run was still training (after the first measurement).
+    copy = {
+        "class_path": "probes.CopyAtEpochStart",
+        "init_args": {"source": "bar.json", "target": "early.json", "epoch": 1},
+    }
+    config.write_text(
+        probes.tiny_fit_config(tiny_root, "bar", epochs=5, batches=3, callbacks=[metrics, copy])
+    )
+    out = Path("bar.json")
+    args = ["bench", "train", "--to-bar", "--config", str(config), "--evaluator", str(evaluator)]
+    assert main(args + ["--repeats", "2", "--out", str(out), "--", "--trainer.max_epochs", "2"]) == 0
+    early = json.loads((tmp_path / "early.json").read_text())
+    assert not early["finished"] and [r["epoch"] for r in early["measurements"]] == [1]
+
+    result = json.loads(out.read_text())
+    assert result["finished"] and result["fit_args"] == ["--trainer.max_epochs", "2"]
+    rows = result["measurements"]
+    assert [(r["epoch"], r["batches"]) for r in rows] == [(1, 3), (2, 6)]
+    assert result["epochs"] == result["max_epochs"] == 2 and result["batches"] == 6
+    assert all(r["metrics_s"] > 0 and 0 < r["train_loop_s"] <= r["training_s"] < r["wall_s"] for r in rows)
+    assert rows[0]["training_s"] < rows[1]["training_s"]
+    assert result["training_s"] + result["metrics_s"] >= rows[-1]["wall_s"] - 0.1
+    assert 0 < result["train_loop_s"] <= result["training_s"]
+    for name, (kind, factor) in BAR.items():
+        bar = result["bar"][name]["value"]
+        assert bar == pytest.approx(factor * result["real_held_out"][name], abs=1e-3)
+        for r in rows:
+            assert r[f"{name}_ok"] == (r[name] >= bar if kind == "min" else r[name] <= bar)
+    assert [r["at_bar"] for r in rows] == [all(r[f"{n}_ok"] for n in BAR) for r in rows]
+    first = next((r["epoch"] for r in rows if r["at_bar"]), None)
+    assert (result["time_to_bar"]["first"] or {}).get("epoch") == first
+    run = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlruns/mlflow.db").get_run(result["mlflow_run_id"])
+    assert run.info.status == "FINISHED" and "metrics/fmd" in run.data.metrics
+
+
+def test_bench_train_times_a_config_in_its_own_precision(tiny_root, tmp_path):
+    from walkdiff.bench import bench_train
+
+    config = tmp_path / "bf16.yaml"
+    text = probes.tiny_fit_config(tiny_root, "bf16", epochs=1, batches=4, callbacks=[])
+    config.write_text(text.replace("  devices: 1\n", "  devices: 1\n  precision: bf16-mixed\n"))
+    result = bench_train(str(tmp_path / "train.json"), str(config), batches=2, warmup=1, repeats=1)
+    assert result["precision"] == "bf16-mixed" and result["batch_size"] == 8
+    assert result["lightning_windows_per_s_median"] > 0 and result["plain_windows_per_s_median"] > 0
+    assert result["cpu_seconds_per_batch_median"] > 0
+    assert json.loads((tmp_path / "train.json").read_text())["precision"] == "bf16-mixed"
+    config.write_text(text.replace("  devices: 1\n", "  devices: 1\n  precision: 16-mixed\n"))
+    with pytest.raises(WalkdiffError, match="trainer.precision"):
+        bench_train(str(tmp_path / "other.json"), str(config), batches=2, warmup=1, repeats=1)

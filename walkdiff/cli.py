@@ -31,8 +31,11 @@ PROFILE_HELP = (
 )
 
 
-def lightning_cli(args: list[str] | None) -> None:
-    """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`."""
+def lightning_cli(args: list[str] | None, callbacks: list | None = None):
+    """LightningCLI in omegaconf mode: `walkdiff fit --config conf/xia.yaml --model.lambda_adv 0.05`.
+
+    `callbacks` join the config's (`walkdiff bench train --to-bar` times a run with them); returns the CLI.
+    """
     from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
     from walkdiff.tracking import absolute_uri, check_tracking_uri
@@ -54,6 +57,7 @@ def lightning_cli(args: list[str] | None) -> None:
 
         def before_fit(self) -> None:
             open_run(self.trainer)
+            self.trainer.callbacks.extend(callbacks or [])
 
         def after_fit(self) -> None:
             report_fit(self.trainer)
@@ -76,7 +80,7 @@ def lightning_cli(args: list[str] | None) -> None:
 
     import lightning as L
 
-    WalkdiffCLI(
+    return WalkdiffCLI(
         L.LightningModule,
         L.LightningDataModule,  # MotionDataModule (walking) or SpeechDataModule (gestures), per config
         subclass_mode_model=True,
@@ -478,6 +482,22 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True)
     b.add_argument("--config", default="conf/xia_cpu.yaml")
     b.add_argument("--batches", type=count(1), default=30, help="batches timed per repeat")
+    b.add_argument(
+        "--to-bar", action="store_true",
+        help="train the config to its epoch bound and report when its metrics reach the quality bar",
+    )  # fmt: skip
+    b.add_argument(
+        "--evaluator",
+        default=None,
+        help="with --to-bar: the metrics callback's evaluator (default: the config's)",
+    )
+    b.add_argument(
+        "--repeats", type=count(1), default=5, help="with --to-bar: draws of real held-out windows"
+    )
+    b.add_argument(
+        "fit_args", nargs="*", metavar="-- FIT_OPTION",
+        help="with --to-bar, after --: `walkdiff fit` overrides of the config (-- --model.lr 1e-3)",
+    )  # fmt: skip
     b = bench.add_parser(
         "gesture", help="DiffMotion s/frame (1 stream: DDPM and few-step, plain and fused), batched streams"
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tempfile
+import time
 from pathlib import Path
 
 import lightning as L
@@ -35,6 +36,9 @@ class MotionMetrics(L.Callback):
         seed: seed of the generation noise and of the metrics' random pairs.
         split: the real windows FMD is measured against. 'train' by default: a checkpoint chosen on
             these numbers must not have seen the test split, and validation has too few windows.
+
+    `history` keeps every measurement (epoch, batches trained, its own seconds, the values) for
+    `walkdiff bench train --to-bar`, which also asks `held_out_reference` what real windows score.
     """
 
     def __init__(
@@ -60,6 +64,7 @@ class MotionMetrics(L.Callback):
         self.seed = seed
         self.scorer: MotionScorer | None = None
         self.real: WindowSet | None = None
+        self.history: list[dict] = []
 
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if not Path(self.evaluator_ckpt).is_file():  # fail now, not after the first epochs
@@ -79,7 +84,11 @@ class MotionMetrics(L.Callback):
             return
         values = None
         if trainer.is_global_zero:
+            started = time.perf_counter()
             values = self.measure(trainer, pl_module, f"metrics/epoch_{epoch:04d}")
+            seconds = time.perf_counter() - started
+            batches = getattr(pl_module, "batches_done", trainer.global_step)
+            self.history.append({"epoch": epoch, "batches": batches, "seconds": seconds} | values)
         values = trainer.strategy.broadcast(values, src=0)
         for name, value in values.items():
             pl_module.log(f"metrics/{name}", value, on_step=False, on_epoch=True, sync_dist=False)
@@ -88,7 +97,7 @@ class MotionMetrics(L.Callback):
         """Load the evaluator and embed the real test windows, once."""
         if self.scorer is not None:
             return
-        datamodule = trainer.datamodule
+        self.datamodule = datamodule = trainer.datamodule
         evaluator = load_evaluator(self.evaluator_ckpt, pl_module.device)
         skeleton = pl_module.skeleton if pl_module.skeleton is not None else datamodule.skeleton
         self.scorer = MotionScorer(evaluator, skeleton, pl_module.spec["fps"], batch_size=self.batch_size)
@@ -130,6 +139,24 @@ class MotionMetrics(L.Callback):
             for path in (confusion, projection):
                 log_file(trainer.logger, path, artifact_dir)
         return values
+
+    def held_out_reference(self, split: str = "test", repeats: int = 5) -> list[dict[str, float]]:
+        """The scores of real windows of a held-out split, `num_samples` drawn at random per repeat and
+        scored exactly as generated ones are (against this callback's reference windows): what a
+        generator's numbers here are to be compared with (FMD: the train-vs-held-out floor)."""
+        if self.scorer is None:
+            raise WalkdiffError("held_out_reference needs a measurement first (the evaluator is loaded then)")
+        held_out = self.scorer.embed(
+            window_set(self.datamodule.split_features(split), self.real.raw.shape[1])
+        )
+        draw = torch.Generator().manual_seed(self.seed)
+        return [
+            self.scorer.score(
+                held_out.take(torch.randint(len(held_out), (self.num_samples,), generator=draw)),
+                seed=self.seed + repeat,
+            )
+            for repeat in range(repeats)
+        ]
 
 
 def confusion_figure(matrix: np.ndarray, names: list[str], path: Path) -> None:

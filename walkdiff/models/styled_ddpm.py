@@ -66,6 +66,10 @@ log = logging.getLogger(__name__)
 DISCRIMINATOR_TERMS = {"d": "discriminator", "d_real": "discriminator_real", "d_fake": "discriminator_fake"}
 
 
+def _at_least_float32(x: torch.Tensor) -> torch.Tensor:
+    return x.to(torch.promote_types(x.dtype, torch.float32))
+
+
 class TrainingDiverged(RuntimeError):
     """A loss term became NaN or infinite; the message names the batch and the term."""
 
@@ -172,8 +176,12 @@ class StyledMotionDiffusion(MotionModule):
         """World joint positions (B, F, J, 3) of raw features."""
         if self.skeleton is None:
             raise WalkdiffError("the position losses need the skeleton: train through `walkdiff fit`")
+        raw = _at_least_float32(raw)
         offsets = torch.as_tensor(self.skeleton.offsets, dtype=raw.dtype, device=raw.device)
-        return features_to_positions(raw, offsets, self.skeleton.parents)
+        # In float32 under bf16 autocast too: FK chains every bone's rotation, and the velocity and foot
+        # terms difference neighbouring frames, which bf16's 3 digits would drown.
+        with torch.autocast(raw.device.type, enabled=False):
+            return features_to_positions(raw, offsets, self.skeleton.parents)
 
     def _velocities(self, positions: torch.Tensor) -> torch.Tensor:
         """Joint velocities (B, F-1, J, 3) of positions, in contact speed thresholds."""
@@ -210,6 +218,7 @@ class StyledMotionDiffusion(MotionModule):
         self, batch: dict, out, target, x0_hat, t, adversarial: bool
     ) -> dict[str, torch.Tensor]:
         weight = self.diffusion.alphas_cumprod[t]  # (B,), see the module docstring
+        out, x0_hat = _at_least_float32(out), _at_least_float32(x0_hat)  # under bf16 autocast too
         raw_hat = self.normalizer.denormalize(x0_hat)
         raw = self.normalizer.denormalize(batch["features"])
         contacts = self.layout.contacts
