@@ -1220,6 +1220,9 @@ def run(args) -> None:
             args.frames,
             args.most,
             threads=_thread_counts(args.threads),
+            sampler=args.sampler,
+            steps=args.steps,
+            eta=args.eta,
         )
     elif args.what == "memory":
         bench_memory(
