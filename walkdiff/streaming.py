@@ -81,13 +81,38 @@ class StreamBatch:
         return made
 
 
+class Stream:
+    """One stream of a `StreamBatch`: its input is fed (`feed`, `close`: audio or path points), and what
+    its batch then makes is handed over (`made`, one frame per row, in the model's feature units)."""
+
+    batch: StreamBatch
+    made: list[np.ndarray]
+
+    def push(self, data) -> np.ndarray:
+        """Input in -> the frames (n, D) that became computable."""
+        self.feed(data)
+        self.batch.run()
+        return self.take()
+
+    def finish(self) -> np.ndarray:
+        """The end of the input -> the remaining frames."""
+        self.close()
+        self.batch.run()
+        return self.take()
+
+    def take(self) -> np.ndarray:
+        """The frames made since the last take, (n, D)."""
+        made, self.made = self.made, []
+        return np.stack(made) if made else np.zeros((0, self.batch.model.spec["feature_dim"]), np.float32)
+
+
 class GestureBatch(StreamBatch):
     def encode(self, ready: list) -> torch.Tensor:
         windows = torch.from_numpy(np.stack([s.control() for s in ready])).to(self.model.device)
         return self.model.encoder.audio(windows)
 
 
-class GestureStream:
+class GestureStream(Stream):
     """DiffMotion gestures from mono audio pushed in pieces of any size (float samples in [-1, 1]).
 
     `rate` defaults to the sample rate of the model's training audio (recorded in checkpoints since
@@ -132,23 +157,6 @@ class GestureStream:
         self.total = self.features.frames
         self.padded += [self.padded[-1]] * self.lookahead
 
-    def push(self, samples: np.ndarray) -> np.ndarray:
-        """Audio in -> the poses (n, D), feature units, that became computable."""
-        self.feed(samples)
-        self.batch.run()
-        return self.take()
-
-    def finish(self) -> np.ndarray:
-        """The end of the audio -> the remaining poses."""
-        self.close()
-        self.batch.run()
-        return self.take()
-
-    def take(self) -> np.ndarray:
-        """The poses made since the last take, (n, D)."""
-        made, self.made = self.made, []
-        return np.stack(made) if made else np.zeros((0, self.batch.model.spec["feature_dim"]), np.float32)
-
     def ready(self) -> bool:
         if self.total is not None:
             return self.frame < self.total
@@ -185,7 +193,7 @@ class WalkBatch(StreamBatch):
         return self.model.encode_control(control[:, None], style)[:, 0]
 
 
-class WalkStream:
+class WalkStream(Stream):
     """A PathWalker walking a path whose points (x, z in the model's units) arrive over time.
 
     A frame is made once the path reaches past where its control reads it: the walker's closest path
@@ -236,21 +244,6 @@ class WalkStream:
         if self.start is None:
             raise WalkdiffError("the path has no length: expected at least two distinct points")
         self.closed = True
-
-    def push(self, points) -> np.ndarray:
-        """Path points in -> the frames (n, D) of raw features that became computable."""
-        self.feed(points)
-        self.batch.run()
-        return self.take()
-
-    def finish(self) -> np.ndarray:
-        self.close()
-        self.batch.run()
-        return self.take()
-
-    def take(self) -> np.ndarray:
-        made, self.made = self.made, []
-        return np.stack(made) if made else np.zeros((0, self.model.spec["feature_dim"]), np.float32)
 
     @property
     def frames(self) -> int:
