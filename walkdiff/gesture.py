@@ -504,8 +504,10 @@ class GestureSamples(L.Callback):
         self.every_n_epochs, self.seconds, self.seed = every_n_epochs, seconds, seed
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
-        epoch = trainer.current_epoch + 1
-        if trainer.sanity_checking or epoch % self.every_n_epochs or not trainer.is_global_zero:
+        from walkdiff.callbacks.samples import preview_epoch
+
+        epoch = preview_epoch(trainer, self.every_n_epochs)
+        if epoch is None:
             return
         self.write(pl_module, trainer.datamodule, trainer.logger, f"samples/epoch_{epoch:04d}")
 

@@ -71,6 +71,15 @@ def real_references(datamodule, styles: list[str], content: str) -> dict[str, tu
     return found
 
 
+def preview_epoch(trainer: L.Trainer, every_n_epochs: int) -> int | None:
+    """The 1-based epoch when a preview is due after this validation (every N epochs, on rank 0, not in
+    the sanity check), else None."""
+    epoch = trainer.current_epoch + 1
+    if trainer.sanity_checking or epoch % every_n_epochs or not trainer.is_global_zero:
+        return None
+    return epoch
+
+
 class SampleClips(L.Callback):
     """Logs `samples/epoch_NNNN/<style>_<content>.bvh`, `styles.gif` (and `styles.mp4`) and the still
     `styles.png`, which is also the run's image `samples/styles` at the epoch's step.
@@ -106,8 +115,8 @@ class SampleClips(L.Callback):
         self.references: dict[str, tuple[str, np.ndarray]] | None = None
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        epoch = trainer.current_epoch + 1
-        if trainer.sanity_checking or epoch % self.every_n_epochs or not trainer.is_global_zero:
+        epoch = preview_epoch(trainer, self.every_n_epochs)
+        if epoch is None:
             return
         if self.references is None:
             styles = list(pl_module.spec["styles"])
@@ -206,8 +215,8 @@ class WalkSamples(L.Callback):
         self.seed = seed
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        epoch = trainer.current_epoch + 1
-        if trainer.sanity_checking or epoch % self.every_n_epochs or not trainer.is_global_zero:
+        epoch = preview_epoch(trainer, self.every_n_epochs)
+        if epoch is None:
             return
         self.write(pl_module, trainer.logger, f"samples/epoch_{epoch:04d}", step=trainer.global_step)
 
