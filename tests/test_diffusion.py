@@ -190,19 +190,21 @@ def test_oracle_recovers_x0(prediction, schedule):
             calls.clear()
             out = ddim_sample(model_fn, diff, x0.shape, steps=steps, eta=eta, generator=_gen(8))
             torch.testing.assert_close(out, x0, atol=1e-4, rtol=0)
-            assert len(calls) == steps and calls[0][0] == 99 and calls[-1][0] == 0
+            assert len(calls) == steps and calls[0][0] == 99 and calls[-1][0] == 100 // steps - 1
         calls.clear()
         out = dpm_solver_sample(model_fn, diff, x0.shape, steps=steps)
         torch.testing.assert_close(out, x0, atol=1e-4, rtol=0)
         assert len(calls) == steps and calls[0][0] == 99 and calls[-1][0] == 0
 
 
-def test_respace_is_even_and_keeps_last_step():
-    assert respace(100, 10) == [99, 88, 77, 66, 55, 44, 33, 22, 11, 0]
+def test_respace_is_even_and_trailing():
+    """Steps of T / K from T - 1: the last step starts at T / K - 1, not at the nearly clean t = 0."""
+    assert respace(100, 10) == [99, 89, 79, 69, 59, 49, 39, 29, 19, 9]
+    assert respace(100, 2) == [99, 49]
     assert respace(100, 1) == [99]
     assert respace(5, 5) == [4, 3, 2, 1, 0]
     ts = respace(1000, 37)
-    assert ts[0] == 999 and ts[-1] == 0 and len(set(ts)) == 37
+    assert ts[0] == 999 and len(set(ts)) == 37 and ts == sorted(ts, reverse=True) and 26 <= ts[-1] <= 27
     with pytest.raises(WalkdiffError, match=r"\[1, 100\]"):
         respace(100, 101)
     with pytest.raises(WalkdiffError, match="eta"):
@@ -346,7 +348,7 @@ def test_inpainting_keeps_known_region_and_noises_it_per_step():
     seen.clear()
     out = ddim_sample(model_fn, diff, known.shape, steps=10, inpaint=(mask[0].float(), known))
     assert torch.equal(out[mask], known[mask]) and sorted(seen) == sorted(respace(100, 10))
-    for t in (99, 55, 11):
+    for t in (99, 59, 9):
         abar = diff.alphas_cumprod[t]
         z = (seen[t][mask] - abar.sqrt() * known[mask]) / (1 - abar).sqrt()
         assert abs(z.mean().item()) < 0.05 and abs(z.std().item() - 1) < 0.05

@@ -5,8 +5,16 @@ from __future__ import annotations
 import pytest
 import torch
 
-from walkdiff.diffusion import PREDICTIONS, GaussianDiffusion, extract, respace, run_steps, step_coefficients
-from walkdiff.distill import ddim_targets, teacher_paths
+from walkdiff.diffusion import (
+    PREDICTIONS,
+    GaussianDiffusion,
+    extract,
+    respace,
+    run_steps,
+    step_coefficients,
+    step_jumps,
+)
+from walkdiff.distill import ddim_targets, student_steps
 
 
 def _diffusion(prediction: str) -> GaussianDiffusion:
@@ -14,12 +22,13 @@ def _diffusion(prediction: str) -> GaussianDiffusion:
 
 
 @pytest.mark.parametrize("prediction", PREDICTIONS)
-def test_an_exact_teacher_asks_the_student_for_the_data_itself(prediction):
+@pytest.mark.parametrize("counts", [[10], [1, 2]])
+def test_an_exact_teacher_asks_the_student_for_the_data_itself(prediction, counts):
     """For data that is always x0 the teacher's ODE is exact and one DDIM step with x0 lands on it."""
     diffusion = _diffusion(prediction)
-    x0 = torch.randn(10, 6, 3, generator=torch.Generator().manual_seed(0))
-    timesteps = respace(100, 10)
-    step = torch.arange(10)  # every kept step, the last (to clean data) included
+    steps = student_steps(diffusion, counts)
+    x0 = torch.randn(len(steps), 6, 3, generator=torch.Generator().manual_seed(0))
+    index = torch.arange(len(steps))  # every student step, the last ones (to clean data) included
 
     def teacher(x_t, t, rows):
         eps = (x_t - extract(diffusion.sqrt_alphas_cumprod, t, x_t) * x0[rows]) / extract(
@@ -27,41 +36,52 @@ def test_an_exact_teacher_asks_the_student_for_the_data_itself(prediction):
         )
         return diffusion.training_target(x0[rows], eps, t)
 
-    t = torch.tensor(timesteps)
+    t = torch.tensor([step.t for step in steps])
     x_t = diffusion.q_sample(x0, t, torch.randn(x0.shape, generator=torch.Generator().manual_seed(1)))
-    targets = ddim_targets(teacher, diffusion, x_t, step, timesteps, teacher_paths(diffusion, timesteps))
+    targets = ddim_targets(teacher, diffusion, x_t, index, steps)
     torch.testing.assert_close(targets, x0, atol=1e-3, rtol=0)
 
 
-def test_one_ddim_step_with_the_target_lands_on_the_teachers_solution():
+def test_the_student_steps_of_one_and_two_step_schedules():
+    diffusion = _diffusion("x0")
+    steps = student_steps(diffusion, [1, 2])
+    assert [(s.t, s.s, s.jump) for s in steps] == [(99, -1, 100), (99, 49, 50), (49, -1, 50)]
+    assert [len(s.path.timesteps) for s in steps] == [100, 50, 50]  # every trained step on the way
+    coarse = student_steps(diffusion, [1, 2], solver_steps=20)
+    assert len(coarse[0].path.timesteps) == 20 and coarse[1].path.timesteps[0] == 99
+    assert all(49 < t <= 99 for t in coarse[1].path.timesteps) and coarse[2].path.timesteps[0] == 49
+    # The sampler's jumps agree with the steps' (the network is told which schedule it is in).
+    assert step_jumps(100, respace(100, 1))[99] == 100 and step_jumps(100, respace(100, 2))[49] == 50
+
+
+@pytest.mark.parametrize("k", [0, 4, 9])
+def test_one_ddim_step_with_the_target_lands_on_the_teachers_solution(k):
     diffusion = _diffusion("x0")
     timesteps = respace(100, 10)
-    paths = teacher_paths(diffusion, timesteps)
-    assert [len(p.timesteps) for p in paths] == [11] * 9 and paths[0].timesteps[-1] == 89
+    steps = student_steps(diffusion, [10])
+    assert [len(s.path.timesteps) for s in steps] == [10] * 10 and steps[0].path.timesteps[-1] == 90
 
     def net(x, t):  # any smooth network
         return 0.6 * x + torch.sin(t.float() / 20).view(-1, 1, 1)
 
     x_t = torch.randn(4, 5, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
-    for k in (0, 4, 8):
-        step = torch.full((4,), k)
-        target = ddim_targets(lambda x, t, rows: net(x, t), diffusion, x_t, step, timesteps, paths)
-        teacher_x_s = run_steps(net, diffusion, None, paths[k], x_T=x_t)
-        one = step_coefficients(diffusion, timesteps[k : k + 2], 0.0)  # DDIM from t_k; its first step
-        student_x_s = one.x_coef[0] * x_t + one.out_coef[0] * target  # the x0 network outputs the target
-        torch.testing.assert_close(student_x_s, teacher_x_s, atol=1e-9, rtol=1e-9)
-        # The target is not the teacher's own one-step estimate: that is DDIM's error being removed.
-        assert not torch.allclose(target, net(x_t, torch.full((4,), timesteps[k])), atol=1e-3)
+    index = torch.full((4,), k)
+    target = ddim_targets(lambda x, t, rows: net(x, t), diffusion, x_t, index, steps)
+    teacher_x_s = run_steps(net, diffusion, None, steps[k].path, x_T=x_t)
+    one = step_coefficients(diffusion, timesteps[k : k + 2], 0.0)  # DDIM from t_k; its first step
+    student_x_s = one.x_coef[0] * x_t + one.out_coef[0] * target  # the x0 network outputs the target
+    torch.testing.assert_close(student_x_s, teacher_x_s, atol=1e-9, rtol=1e-9)
+    # The target is not the teacher's own one-step estimate: that is DDIM's error being removed.
+    assert not torch.allclose(target, net(x_t, torch.full((4,), timesteps[k])), atol=1e-3)
 
 
 def test_the_preserved_share_is_held_to_the_teacher_without_a_jump():
     """Preserved rows (jump 0, any step) learn the teacher's own output; the others a DDIM target at a
-    kept step, with the jump to the next kept step."""
+    student step's start, with that step's jump."""
     from walkdiff.distill import student_targets
 
     diffusion = _diffusion("eps")
-    timesteps = respace(100, 10)
-    paths = teacher_paths(diffusion, timesteps)
+    steps = student_steps(diffusion, [1, 2], solver_steps=10)
 
     def teacher(x, t, style, content):  # depends on every input, so misaligned rows would show
         return 0.5 * x + (t.float() / 100 + style + 10 * content).view(-1, 1, 1)
@@ -69,26 +89,22 @@ def test_the_preserved_share_is_held_to_the_teacher_without_a_jump():
     n = 4000
     batch = {"features": torch.randn(n, 4, 2), "style": torch.arange(n) % 8, "content": torch.arange(n) % 3}
     torch.manual_seed(0)
-    x_t, t, jump, target = student_targets(teacher, diffusion, batch, timesteps, paths, 0.25)
+    x_t, t, jump, target = student_targets(teacher, diffusion, batch, steps, 0.25)
     held = jump == 0
     assert abs(held.float().mean().item() - 0.25) < 0.03
     assert len(set(t[held].tolist())) > 90  # every trained step, the kept ones too
-    assert set(t[~held].tolist()) == set(timesteps)
-    expected_jumps = {99: 11, 88: 11, 11: 11, 0: 1}
-    assert all(jump[i].item() == expected_jumps.get(t[i].item(), 11) for i in torch.nonzero(~held)[:, 0])
+    assert set(zip(t[~held].tolist(), jump[~held].tolist(), strict=True)) == {(99, 100), (99, 50), (49, 50)}
     style, content = batch["style"], batch["content"]
     torch.testing.assert_close(target[held], teacher(x_t[held], t[held], style[held], content[held]))
-    # The distilled rows ask for something else than the teacher's one-step output (but the last step).
-    moved = ~held & (t > 0)
-    one_step = teacher(x_t[moved], t[moved], style[moved], content[moved])
-    assert (target[moved] - one_step).abs().amax(dim=(1, 2)).min() > 1e-4
+    # The distilled rows ask for something else than the teacher's one-step output.
+    one_step = teacher(x_t[~held], t[~held], style[~held], content[~held])
+    assert (target[~held] - one_step).abs().amax(dim=(1, 2)).min() > 1e-4
 
     small = {k: v[:200] for k, v in batch.items()}
-    assert (student_targets(teacher, diffusion, small, timesteps, paths, 0.0)[2] > 0).all()
+    assert (student_targets(teacher, diffusion, small, steps, 0.0)[2] > 0).all()
 
 
 def test_the_jump_embedding_starts_as_the_plain_denoiser_and_is_used_only_above_one():
-    from walkdiff.diffusion import step_jumps
     from walkdiff.models.denoiser import MotionDenoiser
 
     torch.manual_seed(0)
@@ -107,7 +123,7 @@ def test_the_jump_embedding_starts_as_the_plain_denoiser_and_is_used_only_above_
     torch.testing.assert_close(jumped[2:], plain[2:])  # 1 and 0: the plain denoiser
 
     jumps = step_jumps(100, respace(100, 10))
-    assert jumps[99] == jumps[88] == jumps[11] == 11 and jumps[0] == 1
+    assert jumps[99] == jumps[89] == jumps[9] == 10 and jumps[0] == 0
     assert int((jumps > 0).sum()) == 10 and jumps[50] == 0
 
 
@@ -168,7 +184,8 @@ def test_minutes_is_a_safety_net_that_says_how_much_was_done(teacher_ckpt, tmp_p
     args = ["distill", "--ckpt", str(teacher_ckpt), "--out", str(out), "--steps", "4", "--iterations", "40"]
     assert main([*args, "--minutes", "0.01"]) == 0  # 0.6 s: two batches of 0.3 s
     printed = capsys.readouterr()
-    assert f"distilling {teacher_ckpt} for DDIM-4: 40 batches (safety net: 0.01 min)" in printed.out
+    said = "for DDIM-4 (teacher: DPM-Solver++ over 100 steps): 40 batches (safety net: 0.01 min)"
+    assert f"distilling {teacher_ckpt} {said}" in printed.out
     record = torch.load(out, weights_only=False)["distilled"]
     assert record["stopped_by_minutes"] and 1 <= record["batches"] < 40 and record["planned_batches"] == 40
     message = f"--minutes 0.01 stopped distillation after {record['batches']} of 40 batches"
@@ -181,3 +198,15 @@ def test_minutes_is_a_safety_net_that_says_how_much_was_done(teacher_ckpt, tmp_p
         assert said in capsys.readouterr().err
     assert main([*args[:-1], "0", "--overwrite"]) == 1
     assert "--iterations: expected a whole number >= 1, got '0'" in capsys.readouterr().err
+
+
+def test_the_acceleration_term_weighs_frame_to_frame_error_not_a_steady_offset():
+    from walkdiff.distill import distill_loss
+
+    target = torch.randn(64, 24, 8, generator=torch.Generator().manual_seed(3))
+    offset = target + 0.1  # the same error on every frame: no acceleration
+    assert distill_loss(offset, target, 5.0).item() == pytest.approx(0.01, rel=1e-4)
+    noisy = target + 0.1 * torch.randn(target.shape, generator=torch.Generator().manual_seed(4))
+    plain = distill_loss(noisy, target).item()
+    # White error e: its second difference has variance 6 var(e).
+    assert distill_loss(noisy, target, 1.0).item() == pytest.approx(7 * plain, rel=0.05)

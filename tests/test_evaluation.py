@@ -206,18 +206,31 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
     with pytest.raises(WalkdiffError, match="not a distilled checkpoint"):
         bench_distill(report_path, str(ckpt), str(ckpt), evaluator, num=8, seeds=1)
     student = tmp_path / "student.ckpt"
-    distill(str(ckpt), str(student), steps=4, iterations=2)
+    distill(str(ckpt), str(student), steps=[1, 2], iterations=2, teacher_steps=5)
     report = bench_distill(report_path, str(ckpt), str(student), evaluator, num=16, seeds=1)
     rows = [(r["model"], r["sampler"], r["steps"]) for r in report["quality"]]
-    assert rows == [("teacher", "ddpm", 10), ("teacher", "ddim", 4), ("teacher", "dpmpp", 4),
-                    ("student", "ddpm", 10), ("student", "ddim", 4), ("student", "ddim", 2)]  # fmt: skip
-    assert report["quality"][0]["fmd_over_ddpm"] == 1.0 and report["distilled"]["steps"] == 4
+    assert rows == [("teacher", "ddpm", 10), ("teacher", "ddim", 1), ("teacher", "dpmpp", 1),
+                    ("teacher", "ddim", 2), ("teacher", "dpmpp", 2),
+                    ("student", "ddpm", 10), ("student", "ddim", 1), ("student", "ddim", 2)]  # fmt: skip
+    assert report["quality"][0]["fmd_over_ddpm"] == 1.0 and report["distilled"]["steps"] == [1, 2]
     quality = report["quality"]
-    assert quality[3]["fmd_over_own_ddpm"] == quality[3]["style_acc_over_own_ddpm"] == 1.0
+    assert quality[5]["fmd_over_own_ddpm"] == quality[5]["style_acc_over_own_ddpm"] == 1.0
     assert "fmd_over_own_ddpm" not in quality[1]
     fixed = report["student_ddim_fix_feet"]
-    assert fixed["before"]["fmd"] == quality[4]["fmd_per_seed"][0] and fixed["after"]["fmd"] > 0
+    assert fixed["before"]["fmd"] == quality[6]["fmd_per_seed"][0] and fixed["after"]["fmd"] > 0
     assert json.loads((tmp_path / "d.json").read_text())["quality"] == report["quality"]
+
+    # `bench sample` on the student: its step counts join the DDIM rows, the speed and the seams.
+    result = bench_sample(
+        str(tmp_path / "bench_student"), str(student), evaluator, num=16, ddim_steps=(5,), dpm_steps=(5,),
+        seeds=1, batch_size=4, repeats=1,
+    )  # fmt: skip
+    ddim = [row["steps"] for row in result["quality"] if row["sampler"] == "ddim" and row["eta"] == 0]
+    assert ddim == [5, 2, 1]
+    assert result["speed"]["student_ddim1_window_frames_per_s"] > 0
+    assert result["speed"]["student_ddim2_window_frames_per_s"] > 0
+    seams = result["seams_300_frames"]
+    assert [sum(key.startswith(f"student_ddim{k}_") for key in seams) for k in (1, 2)] == [3, 3]
 
 
 def test_bench_protocol_scores_walkdiff_beside_the_baselines(setup, tmp_path):

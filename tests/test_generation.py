@@ -155,7 +155,7 @@ def test_long_motion_has_no_seams_and_a_continuous_root(model):
     assert seams == [23, 39, 55, 71]
     assert seams_within_spread(joint_speeds(model, x), seams)
     # Cross-faded: the first 4 shared frames held, the next 4 faded; the seam is those 5 steps.
-    faded = generate_long(model, style, content, frames, Sampling("ddim", 3), generator, overlap, blend=4)
+    faded = generate_long(model, style, content, frames, Sampling("ddim", 5), generator, overlap, blend=4)
     fade_seams = seam_steps(frames, window, overlap, blend=4)
     assert fade_seams[:5] == [19, 20, 21, 22, 23] and len(fade_seams) == 20
     assert seams_within_spread(joint_speeds(model, faded), fade_seams)
@@ -195,7 +195,7 @@ def test_noised_steps_start_at_strength():
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling())
     assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 0, 60, 1.0)
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling("ddim", 10, eta=0.5))
-    assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 0, 6, 0.5)
+    assert (t0, steps[0], steps[-1], len(steps), eta) == (59, 59, 9, 6, 0.5)  # trailing: 59, 49, ..., 9
     assert (Sampling().order, Sampling("ddim", 10).order, Sampling("dpmpp", 10).order) == (1, 1, 2)
     t0, steps, eta = noised_steps(Fake, 0.6, Sampling("dpmpp", 10))  # even in log-SNR below t0
     assert (t0, steps, eta) == (59, log_snr_timesteps(Fake.diffusion, 6, first=59), 0.0)
@@ -287,15 +287,16 @@ def test_transfer_command_resamples_keeps_the_path_and_refuses_other_skeletons(c
 
 def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tmp_path, capsys):
     student_path = tmp_path / "student.ckpt"
-    args = ["distill", "--ckpt", str(ckpt), "--out", str(student_path), "--steps", "4", "--iterations", "3"]
-    assert main(args) == 0
+    args = ["distill", "--ckpt", str(ckpt), "--out", str(student_path), "--steps", "2,1", "--iterations", "3"]
+    assert main([*args, "--teacher-steps", "20"]) == 0
     printed = capsys.readouterr().out
-    assert f"distilling {ckpt} for DDIM-4: 3 batches" in printed
+    assert f"distilling {ckpt} for DDIM-1, DDIM-2 (teacher: DPM-Solver++ over 20 steps): 3 batches" in printed
     assert f"wrote {student_path}" in printed
     record = torch.load(student_path, map_location="cpu", weights_only=False)["distilled"]
-    assert record["teacher"] == str(ckpt) and record["steps"] == 4 and record["batches"] == 3
+    assert record["teacher"] == str(ckpt) and record["steps"] == [1, 2] and record["batches"] == 3
+    assert record["teacher_steps"] == 20
     student = load_generator(student_path)
-    assert student.hparams.distilled_steps == 4
+    assert student.distilled_steps == [1, 2]
     weights = dict(student.ema.module.named_parameters())
     moved = [not torch.equal(weights[name], p) for name, p in model.ema.module.named_parameters()]
     assert any(moved) and weights["jump_mlp.2.weight"].abs().sum() > 0
@@ -305,13 +306,14 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     forward = student.ema.module.forward
     student.ema.module.forward = lambda x, t, s, c, jump=None: seen.append(jump) or forward(x, t, s, c, jump)
     style, content = torch.tensor([0, 1]), torch.tensor([0, 0])
-    student.generate(style, content, sampler="ddim", steps=4)
-    assert [j.tolist() for j in seen] == [[33, 33]] * 3 + [[1, 1]]  # from 99, 66, 33, and 0 to data
+    student.generate(style, content, sampler="ddim", steps=1)
+    student.generate(style, content, sampler="ddim", steps=2)
+    assert [j.tolist() for j in seen] == [[100, 100], [50, 50], [50, 50]]  # 99 to data; 99 to 49 to data
     seen.clear()
-    student.generate(style, content, sampler="ddim", steps=5)
-    student.generate(style, content, sampler="dpmpp", steps=4)
-    student.generate(style, content, sampler="ddim", steps=4, eta=0.5)
-    assert len(seen) == 13 and all(j is None for j in seen)
+    student.generate(style, content, sampler="ddim", steps=4)
+    student.generate(style, content, sampler="dpmpp", steps=2)
+    student.generate(style, content, sampler="ddim", steps=2, eta=0.5)
+    assert len(seen) == 8 and all(j is None for j in seen)
     del student.ema.module.forward
     torch.testing.assert_close(
         dict(student.ema.module.named_parameters())["input.weight"],
@@ -319,11 +321,13 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     )
     out = tmp_path / "samples"
     assert main(["sample", "--ckpt", str(student_path), "--style", "old", "--num", "1", "--frames", "30",
-                 "--sampler", "ddim", "--steps", "4", "--no-gif", "--out", str(out)]) == 0  # fmt: skip
+                 "--sampler", "ddim", "--steps", "2", "--no-gif", "--out", str(out)]) == 0  # fmt: skip
     assert read_bvh(out / "old_walk_000.bvh").num_frames == 30
     assert json.loads((out / "manifest.json").read_text())["settings"]["distilled_jumps"] is True
     assert main(args) == 1
     assert "would overwrite" in capsys.readouterr().err
+    assert main([*args[:-4], "--steps", "1,x", "--iterations", "3"]) == 1
+    assert "--steps: expected whole numbers >= 1 separated by commas, got '1,x'" in capsys.readouterr().err
     again = ["distill", "--ckpt", str(student_path), "--out", str(tmp_path / "2.ckpt"), "--iterations", "1"]
     assert main(again) == 1
     assert "already a distilled student" in capsys.readouterr().err

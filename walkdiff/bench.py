@@ -437,9 +437,10 @@ def bench_distill(
     """A distilled student's DDIM samples against its teacher's DDPM-100, DDIM and DPM-Solver++.
 
     Writes OUT (JSON): the teacher's DDPM over all T steps (the reference of `fmd_over_ddpm`), DDIM and
-    DPM-Solver++(2M) at the student's step count; the student's DDPM (the reference of its rows'
-    `fmd_over_own_ddpm`) and DDIM at that count and at half of it. Each the mean over `seeds` seeds (the
-    same for all), scored on the teacher's real test windows.
+    DPM-Solver++(2M) at each of the student's step counts; the student's DDPM (the reference of its rows'
+    `fmd_over_own_ddpm`) and DDIM at each of its counts. Each the mean over `seeds` seeds (the same for
+    all), scored on the teacher's real test windows. `bench sample` on the student adds its speed, seams
+    and transfer.
     """
     from walkdiff.generation import load_generator
 
@@ -447,25 +448,23 @@ def bench_distill(
     record = torch.load(student, map_location="cpu", weights_only=False, mmap=True).get("distilled")
     if record is None:
         raise WalkdiffError("not a distilled checkpoint (made by `walkdiff distill`)", path=student)
-    steps = record["steps"]
+    counts = student_model.distilled_steps
     bench = _QualityBench(teacher_model, teacher, evaluator, num, seed, seeds, ground)
     ddpm_steps = teacher_model.diffusion.num_timesteps
+    settings = [("teacher", teacher_model, "ddpm", ddpm_steps)]
+    settings += [("teacher", teacher_model, sampler, k) for k in counts for sampler in ("ddim", "dpmpp")]
+    settings += [("student", student_model, "ddpm", ddpm_steps)]
+    settings += [("student", student_model, "ddim", k) for k in counts]
     rows = []
-    for who, model, sampler, k in (
-        ("teacher", teacher_model, "ddpm", ddpm_steps),
-        ("teacher", teacher_model, "ddim", steps),
-        ("teacher", teacher_model, "dpmpp", steps),
-        ("student", student_model, "ddpm", ddpm_steps),
-        ("student", student_model, "ddim", steps),
-        ("student", student_model, "ddim", max(1, steps // 2)),
-    ):
+    for who, model, sampler, k in settings:
         row, first_seed = bench.row(model, sampler, k, 1.0 if sampler == "ddpm" else 0.0)
         rows.append(_with_ratios({"model": who} | row, rows[0] if rows else row))
-        if (who, sampler, k) == ("student", "ddim", steps):
+        if (who, sampler, k) == ("student", "ddim", counts[0]):
             student_windows, student_scores = first_seed
     # The student's own DDPM too: one checkpoint, both samplers (distill's `preserve` keeps its DDPM).
-    own = rows[3]
-    for row in rows[3:]:
+    first_student = next(i for i, s in enumerate(settings) if s[0] == "student")
+    own = rows[first_student]
+    for row in rows[first_student:]:
         row["fmd_over_own_ddpm"] = round(row["fmd"] / own["fmd"], 3)
         row["style_acc_over_own_ddpm"] = round(row["style_acc"] / own["style_acc"], 3)
     # --fix-feet on the samples the student is for (first seed), as `bench sample` does on DDPM's.
@@ -673,7 +672,8 @@ def bench_sample(
     Writes OUT/sample.json and OUT/sample.png. Quality: FMD and recognition against the real test
     windows (evaluation.py's scorer) of `num` windows balanced over styles, DDPM over all T steps, DDIM
     over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over `seeds` seeds
-    (the same seeds for every sampler), with each one's ratio to DDPM.
+    (the same seeds for every sampler), with each one's ratio to DDPM. A distilled student's DDIM step
+    counts (`walkdiff distill`) join the DDIM rows, the speed (frames/s at each) and the seams.
     """
     from walkdiff.diffusion import respace
     from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
@@ -685,7 +685,9 @@ def bench_sample(
     # DDPM over all T steps; DDIM at eta 0 over the step counts and at 10 steps with some of DDPM's noise
     # put back (eta > 0); DPM-Solver++(2M) over its steps.
     configs = [("ddpm", model.diffusion.num_timesteps, 1.0)]
-    configs += [("ddim", k, 0.0) for k in ddim_steps] + [("ddim", 10, eta) for eta in (0.5, 1.0)]
+    distilled = model.distilled_steps
+    ddim_counts = sorted({*ddim_steps, *distilled}, reverse=True)
+    configs += [("ddim", k, 0.0) for k in ddim_counts] + [("ddim", 10, eta) for eta in (0.5, 1.0)]
     configs += [("dpmpp", k, 0.0) for k in dpm_steps]
     quality, generated = [], {}
     for config in configs:
@@ -719,7 +721,15 @@ def bench_sample(
             for _ in range(10):
                 net(x, t)
 
-    batch_s, dpm_s, ten_s = _interleaved_medians([sample10("ddim"), sample10("dpmpp"), ten_forwards], repeats)
+    def student(k: int):
+        return lambda: model.generate(style, content, sampler="ddim", steps=k)
+
+    for k in distilled:
+        student(k)()  # warm-up
+    medians = _interleaved_medians(
+        [sample10("ddim"), sample10("dpmpp"), ten_forwards, *(student(k) for k in distilled)], repeats
+    )
+    batch_s, dpm_s, ten_s = medians[:3]
     forward_s = ten_s / 10
     long_frames = 300
     generate_long(model, style, content, long_frames, Sampling("ddim", 10))  # warm-up
@@ -745,6 +755,10 @@ def bench_sample(
         "ddim10_window_frames_per_s": round(batch_size * window / batch_s, 1),
         "dpmpp10_window_frames_per_s": round(batch_size * window / dpm_s, 1),
         "ddim10_long_frames_per_s": round(batch_size * long_frames / long_s, 1),
+        **{
+            f"student_ddim{k}_window_frames_per_s": round(batch_size * window / k_s, 1)
+            for k, k_s in zip(distilled, medians[3:], strict=True)
+        },
         "step_s": round(batch_s / 10, 5),
         "dpmpp_step_s": round(dpm_s / 10, 5),
         "forward_s": round(forward_s, 5),
@@ -761,6 +775,7 @@ def bench_sample(
             ("ddpm", Sampling()),
             ("ddim10", Sampling("ddim", 10)),
             ("dpmpp10", Sampling("dpmpp", 10)),
+            *((f"student_ddim{k}", Sampling("ddim", k)) for k in distilled),
         )
         for name, sampling in samplings:
             x = generate_long(

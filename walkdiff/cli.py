@@ -182,6 +182,22 @@ def count(low: int):
     return parse
 
 
+def counts(low: int):
+    """An argparse type: whole numbers >= low, separated by commas ("1,2")."""
+    one = count(low)
+
+    def parse(text: str) -> list[int]:
+        try:
+            return sorted({one(part) for part in text.split(",")})
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(
+                f"expected whole numbers >= {low} separated by commas, got {text!r}"
+            ) from None
+
+    parse.__name__ = "counts"
+    return parse
+
+
 class UsageError(WalkdiffError):
     """A bad command line: said in one line with a pointer to the command's --help, not the whole usage."""
 
@@ -451,8 +467,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ckpt", required=True, help="teacher: a StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help="student checkpoint to write")
     p.add_argument(
-        "--steps", type=count(1), default=10, help="DDIM steps the student is made for (default 10)"
-    )
+        "--steps", type=counts(1), default=[10],
+        help="DDIM step counts the student is made for, one or several: 10 (default), 1,2",
+    )  # fmt: skip
+    p.add_argument(
+        "--teacher-steps", type=count(1), default=None,
+        help="the teacher's DPM-Solver++ steps over all of T for the targets (default: every trained step); "
+        "a 1-step target then costs this many teacher passes instead of T",
+    )  # fmt: skip
+    p.add_argument(
+        "--lambda-accel", type=number(0), default=0.0,
+        help="weight of the squared error of the output's frame-to-frame acceleration beside the plain "
+        "squared error (default 0): keeps a 1- or 2-step student's samples from jittering",
+    )  # fmt: skip
     p.add_argument(
         "--iterations", type=count(1), default=1000,
         help="batches to train (default 1000): the bound, so the same command and seed give the same student "
@@ -590,7 +617,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
-    b.add_argument("--student", default=None, help="a distilled student's checkpoint (one more row)")
+    b.add_argument(
+        "--student",
+        default=None,
+        help="a distilled student's checkpoint (a row for each of its DDIM step counts)",
+    )
     b.add_argument("--out", required=True, help="folder for protocol.json and protocol.md")
     b.add_argument("--strengths", default="0.4,0.6,0.8", help="transfer strengths (default 0.4,0.6,0.8)")
     b.add_argument("--samples", type=count(1), default=256, help="windows per sampling row (default 256)")

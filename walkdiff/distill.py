@@ -1,24 +1,28 @@
 """Few-step distillation: a student whose single DDIM steps go where the teacher's ODE goes in many.
 
 DDIM over K respaced steps moves from a kept step t to the next one s with one first-order step of the
-sampling ODE; at K = 10 that costs the trained model about 19% in FMD (README). Distillation (Salimans &
-Ho 2022, progressive distillation, here in one stage since T = 100 is short) trains a copy of the network
-so that one DDIM step from t lands where the teacher lands after solving the ODE from t to s finely,
-with DPM-Solver++(2M) over every trained step in between. DDIM's step (eta 0) is
+sampling ODE; at K = 10 that costs the trained model about 19% in FMD (README), and at K = 1 or 2 it gives
+the blur of the posterior mean. Distillation (Salimans & Ho 2022, progressive distillation, here in one
+stage since T = 100 is short; with the last step's target solved to the end, as in Luhman & Luhman 2021)
+trains a copy of the network so that one DDIM step from t lands where the teacher lands after solving
+the ODE from t to s finely, with DPM-Solver++(2M). DDIM's step (eta 0) is
 
     x_s = sqrt(abar_s) x0 + rho (x_t - sqrt(abar_t) x0),   rho = sqrt((1 - abar_s) / (1 - abar_t)),
 
 so the estimate the student must give is x0* = (x_s - rho x_t) / (sqrt(abar_s) - rho sqrt(abar_t)),
-which it learns in its own parameterisation (x0, eps or v). The last step (to clean data) keeps the
-teacher's estimate. The x_t are real training windows noised to t, the states sampling passes through.
+which it learns in its own parameterisation (x0, eps or v). The last step goes to clean data (abar_s =
+1, rho = 0): its target is the teacher's ODE solution itself, so a 1-step student maps noise to the
+sample the teacher's ODE would give. The x_t are real training windows noised to t, the states sampling
+passes through.
 
-One network serves both samplers: the student also takes the jump, how many trained steps a DDIM step
-spans (MotionDenoiser's jump embedding, zero at the start), and gets it only when sampling with the DDIM
-step count it was distilled for. A share of every batch (`preserve`) is drawn at any trained step with no
-jump and the teacher's own output as target, which keeps the plain denoiser that DDPM, DPM-Solver++,
-other DDIM step counts, transfer and --fix-feet use close to the teacher's. Without the jump and this
-share the student's DDPM drifted (FMD 59 against the teacher's 68, README): distillation then moved the
-same estimates DDPM relies on.
+One network serves every sampler: the student also takes the jump, how many trained steps a DDIM step
+spans (MotionDenoiser's jump embedding, zero at the start), and gets it only when sampling with a DDIM
+step count it was distilled for; several counts (1 and 2) share one student, told apart by their jumps.
+A share of every batch (`preserve`) is drawn at any trained step with no jump and the teacher's own
+output as target, which keeps the plain denoiser that DDPM, DPM-Solver++, other DDIM step counts,
+transfer and --fix-feet use close to the teacher's. Without the jump and this share the student's DDPM
+drifted (FMD 59 against the teacher's 68, README): distillation then moved the same estimates DDPM
+relies on.
 
 The student is saved as a checkpoint of the same model (with `distilled_steps` set and a `distilled`
 record), so every command takes it.
@@ -31,6 +35,7 @@ import dataclasses
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -39,10 +44,10 @@ from walkdiff.diffusion import (
     GaussianDiffusion,
     SamplerSteps,
     extract,
+    log_snr_timesteps,
     respace,
     run_steps,
     step_coefficients,
-    step_jumps,
 )
 from walkdiff.diffusion.samplers import ModelFn
 from walkdiff.errors import WalkdiffError
@@ -54,39 +59,61 @@ def _first_steps(steps: SamplerSteps, n: int) -> SamplerSteps:
     return SamplerSteps(**{f.name: getattr(steps, f.name)[:n] for f in dataclasses.fields(steps)})
 
 
-def teacher_paths(diffusion: GaussianDiffusion, timesteps: list[int]) -> list[SamplerSteps]:
-    """For each step t_k -> t_k+1 of `timesteps` but the last: DPM-Solver++(2M) over every trained step
-    from t_k down to t_k+1, stopping there (not going on to clean data)."""
-    paths = []
-    for t, s in zip(timesteps, timesteps[1:], strict=False):
-        full = step_coefficients(diffusion, list(range(t, s - 1, -1)), 0.0, order=2)
-        paths.append(_first_steps(full, t - s))
-    return paths
+@dataclass(frozen=True)
+class StudentStep:
+    """One DDIM step of a student's schedule: from trained step t to trained step s, or to clean data
+    (s = -1, the schedule's last step), and the teacher's solver path over the same span."""
+
+    t: int
+    s: int
+    path: SamplerSteps
+
+    @property
+    def jump(self) -> int:  # what step_jumps gives the sampler at t
+        return self.t - self.s
+
+
+def student_steps(
+    diffusion: GaussianDiffusion, step_counts: list[int], solver_steps: int | None = None
+) -> list[StudentStep]:
+    """Every DDIM step of the schedules of `step_counts` (respaced; a step shared by two schedules is
+    listed for each), with the teacher's path: DPM-Solver++(2M) from t to the next kept step, stopping
+    there, or from the last kept step all the way to clean data. The solver steps on the trained steps in
+    between: every one (`solver_steps` None), or those of a `solver_steps`-step log-SNR grid over all of T,
+    which makes a 1-step student's target cost `solver_steps` teacher passes instead of T."""
+    total = diffusion.num_timesteps
+    grid = set(range(total)) if solver_steps is None else set(log_snr_timesteps(diffusion, solver_steps))
+    found = []
+    for count in step_counts:
+        timesteps = respace(total, count)
+        for t, s in zip(timesteps, [*timesteps[1:], -1], strict=True):
+            inner = sorted((g for g in grid if s < g < t), reverse=True)
+            if s < 0:  # the solver's last step goes to clean data
+                path = step_coefficients(diffusion, [t, *inner], 0.0, order=2)
+            else:
+                full = step_coefficients(diffusion, [t, *inner, s], 0.0, order=2)
+                path = _first_steps(full, len(inner) + 1)
+            found.append(StudentStep(t, s, path))
+    return found
 
 
 def ddim_targets(
     teacher: ModelFn,
     diffusion: GaussianDiffusion,
     x_t: torch.Tensor,
-    step: torch.Tensor,
-    timesteps: list[int],
-    paths: list[SamplerSteps],
+    index: torch.Tensor,
+    steps: list[StudentStep],
 ) -> torch.Tensor:
-    """The x0 estimates (B, ...) that make one DDIM step from x_t at timesteps[step] land on the teacher's
-    solution at the next kept step. teacher(x, t, rows) is the teacher on the batch rows `rows`."""
+    """The x0 estimates (B, ...) that make one DDIM step from x_t, steps[index] for each row, land on the
+    teacher's solution at the step's end (for the last step, clean data: the estimate is the solution).
+    teacher(x, t, rows) is the teacher on the batch rows `rows`."""
     abar = diffusion.alphas_cumprod64().tolist()
     targets = torch.empty_like(x_t)
-    for k in step.unique().tolist():
-        rows = step == k
-        t = timesteps[k]
+    for k in index.unique().tolist():
+        rows, step = index == k, steps[k]
         model_fn = lambda x, tt, rows=rows: teacher(x, tt, rows)  # noqa: E731
-        if k == len(timesteps) - 1:  # the last step: DDIM returns the estimate itself
-            x_last = x_t[rows]
-            t_last = torch.full((len(x_last),), t, device=x_t.device)
-            targets[rows] = diffusion.predict_x0(model_fn(x_last, t_last), x_last, t_last)
-            continue
-        x_s = run_steps(model_fn, diffusion, None, paths[k], x_T=x_t[rows])
-        a_t, a_s = abar[t], abar[timesteps[k + 1]]
+        x_s = run_steps(model_fn, diffusion, None, step.path, x_T=x_t[rows])
+        a_t, a_s = abar[step.t], abar[step.s] if step.s >= 0 else 1.0
         rho = math.sqrt((1 - a_s) / (1 - a_t))
         targets[rows] = (x_s - rho * x_t[rows]) / (math.sqrt(a_s) - rho * math.sqrt(a_t))
     return targets
@@ -96,21 +123,19 @@ def student_targets(
     teacher,
     diffusion: GaussianDiffusion,
     batch: dict,
-    timesteps: list[int],
-    paths: list[SamplerSteps],
+    steps: list[StudentStep],
     preserve: float,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """(x_t, t, jump, target) of one training batch.
 
-    Most rows: the window noised to a random kept step t_k, the jump t_k - t_k+1 of DDIM's step from
-    there, and the output that step needs (ddim_targets, in the network's parameterisation). A `preserve`
-    share of the rows: a random trained step, no jump (0) and the teacher's own output, which keeps the
-    plain denoiser, the one DDPM and the other samplers use, the teacher's. teacher(x, t, style,
-    content) is the teacher network."""
+    Most rows: the window noised to the start t of a random student step, the step's jump, and the output
+    that step needs (ddim_targets, in the network's parameterisation). A `preserve` share of the rows: a
+    random trained step, no jump (0) and the teacher's own output, which keeps the plain denoiser, the one
+    DDPM and the other samplers use, the teacher's. teacher(x, t, style, content) is the teacher network."""
     x0 = batch["features"]
-    step = torch.randint(0, len(timesteps), (x0.shape[0],))
-    t = torch.tensor(timesteps)[step]
-    jump = step_jumps(diffusion.num_timesteps, timesteps)[t]
+    index = torch.randint(0, len(steps), (x0.shape[0],))
+    t = torch.tensor([step.t for step in steps])[index]
+    jump = torch.tensor([step.jump for step in steps])[index]
     held = torch.rand(x0.shape[0]) < preserve
     t[held] = torch.randint(0, diffusion.num_timesteps, (int(held.sum()),))
     jump[held] = 0
@@ -123,7 +148,7 @@ def student_targets(
     if rows.any():
         s, c = style[rows], content[rows]
         x0_target = ddim_targets(
-            lambda x, tt, r: teacher(x, tt, s[r], c[r]), diffusion, x_t[rows], step[rows], timesteps, paths
+            lambda x, tt, r: teacher(x, tt, s[r], c[r]), diffusion, x_t[rows], index[rows], steps
         )
         abar = extract(diffusion.alphas_cumprod, t[rows], x0_target)
         eps_target = (x_t[rows] - abar.sqrt() * x0_target) / (1 - abar).sqrt()
@@ -131,22 +156,40 @@ def student_targets(
     return x_t, t, jump, target
 
 
+def distill_loss(out: torch.Tensor, target: torch.Tensor, lambda_accel: float = 0.0) -> torch.Tensor:
+    """Squared error of the student's output (B, F, D), plus `lambda_accel` times that of its frame-to-frame
+    acceleration (second differences over F). The plain error weighs every frequency alike, and what is
+    left of it frame to frame shows as jitter (third differences): a few-step student's samples jittered
+    10x more than the teacher's DDPM. For every parameterisation the x0 estimate is linear in the output
+    at a given step, so the term is the x0 estimate's acceleration error up to a per-step scale."""
+    error = out - target
+    loss = error.pow(2).mean()
+    if lambda_accel > 0:
+        accel = error[:, 2:] - 2 * error[:, 1:-1] + error[:, :-2]
+        loss = loss + lambda_accel * accel.pow(2).mean()
+    return loss
+
+
 def distill(
     ckpt: str,
     out: str,
-    steps: int = 10,
+    steps: list[int] | int = 10,
     iterations: int = 1000,
     minutes: float | None = None,
     lr: float = 3e-5,
     seed: int = 0,
     overwrite: bool = False,
     preserve: float = 0.25,
+    teacher_steps: int | None = None,
+    lambda_accel: float = 0.0,
 ) -> dict:
-    """Train a DDIM-`steps` student of a StyledMotionDiffusion checkpoint for `iterations` batches and save
-    it to `out`. The work is the bound, so the same command and seed give the same student on a fast and a
-    slow machine; `minutes`, when given, is only a safety net, and a student it stopped says so (on the
-    console and in its `distilled` record). `preserve`: the share of each batch held, without a jump, to
-    the teacher's own output. Returns the run's record."""
+    """Train a student of a StyledMotionDiffusion checkpoint for DDIM over each of `steps` (one count or
+    several: one network, told apart by the jump) for `iterations` batches and save it to `out`.
+    `teacher_steps`: the teacher's solver grid (student_steps; default every trained step). The work is
+    the bound, so the same command and seed give the same student on a fast and a slow machine; `minutes`,
+    when given, is only a safety net, and a student it stopped says so (on the console and in its
+    `distilled` record). `preserve`: the share of each batch held, without a jump, to the teacher's own
+    output. `lambda_accel`: the weight of the acceleration term (distill_loss). Returns the run's record."""
     from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.evaluation import data_settings
     from walkdiff.generation import load_generator
@@ -160,12 +203,19 @@ def distill(
         raise WalkdiffError(f"--minutes: expected a positive number of minutes (or none), got {minutes}")
     if not 0 <= preserve < 1:
         raise WalkdiffError(f"--preserve must be in [0, 1), got {preserve}")
+    if not (math.isfinite(lambda_accel) and lambda_accel >= 0):
+        raise WalkdiffError(f"--lambda-accel must be a finite number >= 0, got {lambda_accel}")
+    counts = sorted(set([steps] if isinstance(steps, int) else steps))
     model = load_generator(ckpt)
-    if model.hparams.get("distilled_steps", 0):
+    if model.distilled_steps:
         raise WalkdiffError("already a distilled student; distil from the trained model", path=ckpt)
     diffusion = model.diffusion
-    timesteps = respace(diffusion.num_timesteps, steps)
-    paths = teacher_paths(diffusion, timesteps)
+    total = diffusion.num_timesteps
+    if not counts or not all(1 <= k <= total for k in counts):
+        raise WalkdiffError(f"--steps: expected DDIM step counts in [1, {total}], got {steps}")
+    if teacher_steps is not None and not 1 <= teacher_steps <= total:
+        raise WalkdiffError(f"--teacher-steps: expected a number in [1, {total}], got {teacher_steps}")
+    plan = student_steps(diffusion, counts, teacher_steps)
     checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
     datamodule = MotionDataModule(**data_settings(checkpoint))
     datamodule.setup("fit")
@@ -180,12 +230,14 @@ def distill(
 
     start, done, losses = time.perf_counter(), 0, []
     net = f" (safety net: {minutes:g} min)" if minutes is not None else ""
-    print(f"distilling {ckpt} for DDIM-{steps}: {iterations} batches{net}", flush=True)
+    solver = f"DPM-Solver++ over {teacher_steps or total} steps"
+    schedules = ", ".join(f"DDIM-{k}" for k in counts)
+    print(f"distilling {ckpt} for {schedules} (teacher: {solver}): {iterations} batches{net}", flush=True)
     with progress(total=iterations, desc="distilling", unit="batch") as bar:
         for batch in _endless(datamodule):
             with torch.no_grad():
-                x_t, t, jump, target = student_targets(teacher, diffusion, batch, timesteps, paths, preserve)
-            loss = (student(x_t, t, batch["style"], batch["content"], jump) - target).pow(2).mean()
+                x_t, t, jump, target = student_targets(teacher, diffusion, batch, plan, preserve)
+            loss = distill_loss(student(x_t, t, batch["style"], batch["content"], jump), target, lambda_accel)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(student.parameters(), 1.0)
@@ -203,7 +255,13 @@ def distill(
             "on a slower or busier machine the same command trains fewer; without --minutes it trains all",
             file=sys.stderr,
         )
-    return _save(checkpoint, student, out_path, ckpt, steps, preserve, done, iterations, elapsed, losses)
+    settings = {
+        "steps": counts,
+        "teacher_steps": teacher_steps or total,
+        "preserve": preserve,
+        "lambda_accel": lambda_accel,
+    }
+    return _save(checkpoint, student, out_path, ckpt, settings, done, iterations, elapsed, losses)
 
 
 def _endless(datamodule):
@@ -212,21 +270,18 @@ def _endless(datamodule):
         yield from datamodule.train_dataloader()
 
 
-def _save(
-    checkpoint, student, out_path, teacher_ckpt, steps, preserve, batches, planned, elapsed, losses
-) -> dict:
+def _save(checkpoint, student, out_path, teacher_ckpt, settings, batches, planned, elapsed, losses) -> dict:
     weights = student.state_dict()
     for name, value in weights.items():  # both copies, so sampling and any further training agree
         checkpoint["state_dict"][f"ema.module.{name}"] = value
         checkpoint["state_dict"][f"denoiser.{name}"] = value.clone()
     # The teacher's optimizer state does not belong to these weights.
     checkpoint["optimizer_states"], checkpoint["lr_schedulers"] = [], []
-    checkpoint["hyper_parameters"]["distilled_steps"] = steps  # builds the jump embedding on loading
+    checkpoint["hyper_parameters"]["distilled_steps"] = settings["steps"]  # builds the jump embedding
     record = {
         "teacher": str(teacher_ckpt),
         "sampler": "ddim",
-        "steps": steps,
-        "preserve": preserve,
+        **settings,
         "batches": batches,
         "planned_batches": planned,
         "stopped_by_minutes": batches < planned,  # then the student depends on the machine's speed

@@ -2,8 +2,8 @@
 any method, beside the baselines every method is compared with.
 
 - Sampling: `samples` windows balanced over styles from the generator (DDPM over all steps and DDIM-10)
-  and from a distilled student (DDIM-10, when given), each window a clip; the real training split as
-  the floor a generator can reach.
+  and from a distilled student (DDIM at each step count it was made for, when given), each window a
+  clip; the real training split as the floor a generator can reach.
 - Transfer: every real test clip of the protocol's contents restyled to every other style, at each
   strength, with and without `--keep-trajectory`; the unchanged sources and real clips of the target
   styles scored the same way. A setting is a style transfer when it beats both baselines
@@ -105,9 +105,11 @@ def bench_protocol(
         scorer, model, samples, seed, batch_size, bootstrap, sampler="ddim", steps=10
     )
     if student is not None:
-        rows["distilled student, DDIM 10"] = _sample_row(
-            scorer, load_generator(student), samples, seed, batch_size, bootstrap, sampler="ddim", steps=10
-        )
+        distilled = load_generator(student)
+        for k in distilled.distilled_steps or [10]:
+            rows[f"distilled student, DDIM {k}"] = _sample_row(
+                scorer, distilled, samples, seed, batch_size, bootstrap, sampler="ddim", steps=k
+            )
     train = scorer.windows(scorer.real_clips("train"))
     rows["real train (floor)"] = scorer.statistics(train, scorer.recognition(train)).bootstrap(
         bootstrap, seed

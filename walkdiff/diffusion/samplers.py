@@ -102,10 +102,13 @@ class SamplerChoice:
 
 
 def respace(num_timesteps: int, steps: int) -> list[int]:
-    """`steps` trained timesteps, evenly spaced and descending, from T - 1 down to 0."""
+    """`steps` trained timesteps, descending from T - 1 by T / steps ("trailing" spacing, Lin et al. 2024):
+    100 steps in 2 are [99, 49], in 10 [99, 89, ..., 9]. The last step goes from T / steps - 1 to clean
+    data; spacing that ends at t = 0 instead spends a whole step on the nearly clean t = 0 and leaves the
+    others one step short (2 steps would be [99, 0]: a single real step)."""
     if not 1 <= steps <= num_timesteps:
         raise WalkdiffError(f"the number of sampling steps must be in [1, {num_timesteps}], got {steps}")
-    return torch.linspace(num_timesteps - 1, 0, steps, dtype=torch.float64).round().long().tolist()
+    return [round(num_timesteps - 1 - i * num_timesteps / steps) for i in range(steps)]
 
 
 def step_jumps(num_timesteps: int, timesteps: Sequence[int], device=None) -> torch.Tensor:

@@ -41,6 +41,7 @@ import torch.nn.functional as F
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from walkdiff.diffusion import (
+    DEFAULT_STEPS,
     GaussianDiffusion,
     Progress,
     ddim_sample,
@@ -102,7 +103,7 @@ class StyledMotionDiffusion(MotionModule):
         lr_warmup_batches: int = 100,
         grad_clip: float = 1.0,
         ema_decay: float = 0.999,
-        distilled_steps: int = 0,  # set by `walkdiff distill`: DDIM over this many steps takes jumps
+        distilled_steps: list[int] | int = 0,  # set by `walkdiff distill`: DDIM over these step counts jumps
     ):
         super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
@@ -113,7 +114,7 @@ class StyledMotionDiffusion(MotionModule):
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
         self.denoiser = MotionDenoiser(
             spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout,
-            jump_conditioning=distilled_steps > 0,
+            jump_conditioning=bool(self.distilled_steps),
         )  # fmt: skip
         self.discriminator = (
             MotionDiscriminator(
@@ -404,11 +405,18 @@ class StyledMotionDiffusion(MotionModule):
     def jumps(self, sampler: str, steps: int | None, eta: float) -> torch.Tensor | None:
         """The jumps (T,) a distilled student samples with where it was distilled, deterministic DDIM
         over its step count (walkdiff/distill.py); None everywhere else: the plain denoiser."""
-        distilled = self.hparams.get("distilled_steps", 0)
-        if not (distilled and sampler == "ddim" and eta == 0 and (steps or 10) == distilled):
+        steps = steps or DEFAULT_STEPS
+        if not (sampler == "ddim" and eta == 0 and steps in self.distilled_steps):
             return None
         total = self.diffusion.num_timesteps
-        return step_jumps(total, respace(total, distilled), self.device)
+        return step_jumps(total, respace(total, steps), self.device)
+
+    @property
+    def distilled_steps(self) -> list[int]:
+        """The DDIM step counts a distilled student was made for (walkdiff/distill.py); [] for a trained
+        model. Students of one count saved the number itself."""
+        steps = self.hparams.get("distilled_steps", 0)
+        return ([steps] if steps else []) if isinstance(steps, int) else list(steps)
 
     def model_fn(
         self,
