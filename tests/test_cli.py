@@ -111,10 +111,10 @@ def test_unknown_tracking_uri_fails_before_training(xia_dir, capsys):
     assert "http://127.0.0.1:9/" in capsys.readouterr().err
 
 
-def test_cli_offers_every_sampler_generation_knows():
-    from walkdiff import cli, generation
+def test_cli_offers_every_sampler_the_samplers_know():
+    from walkdiff import cli, diffusion
 
-    assert cli.SAMPLERS == generation.SAMPLERS
+    assert cli.SAMPLERS == diffusion.SAMPLERS
 
 
 def test_convert_refuses_to_clobber_and_bad_rates(xia_dir, tmp_path, capsys):

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from walkdiff.errors import WalkdiffError
 
-# generation.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
+# diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
 SAMPLER_HELP = (
     "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.diffusion import log_snr_timesteps, respace, run_steps, step_coefficients
+from walkdiff.diffusion import SamplerChoice, log_snr_timesteps, respace, run_steps, step_coefficients
 from walkdiff.errors import WalkdiffError
 from walkdiff.files import check_free, output_folder, write_json
 from walkdiff.footfix import fix_feet
@@ -39,9 +39,6 @@ from walkdiff.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 Known = tuple[torch.Tensor, torch.Tensor]
 
 
-SAMPLERS = ("ddpm", "ddim", "dpmpp")
-
-
 @dataclass(frozen=True)
 class Sampling:
     """How windows are denoised: ancestral DDPM over all T steps, or DDIM or DPM-Solver++(2M) (dpmpp, the
@@ -53,20 +50,9 @@ class Sampling:
     guidance: float = 1.0  # classifier-free guidance weight; 1 is none
 
     def __post_init__(self) -> None:
-        if self.sampler not in SAMPLERS:
-            raise WalkdiffError(f"--sampler: expected one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
-        if self.sampler != "ddim" and self.eta != 0:
-            raise WalkdiffError(
-                f"--eta applies to ddim only ({self.sampler} sets its own noise), got {self.eta}"
-            )
-        if self.steps is not None and self.steps < 1:
-            raise WalkdiffError(f"--steps must be at least 1, got {self.steps}")
-        if self.sampler == "ddpm" and self.steps is not None:
-            raise WalkdiffError("--steps applies to ddim and dpmpp: ddpm always takes every trained step")
+        SamplerChoice(self.sampler, self.steps, self.eta)  # its checks and messages: sampler, steps, eta
         if not math.isfinite(self.guidance):
             raise WalkdiffError(f"--guidance must be a finite number, got {self.guidance}")
-        if not (math.isfinite(self.eta) and 0 <= self.eta <= 1):
-            raise WalkdiffError(f"--eta must be in [0, 1], got {self.eta}")
 
     @property
     def order(self) -> int:
