@@ -210,3 +210,38 @@ def test_the_acceleration_term_weighs_frame_to_frame_error_not_a_steady_offset()
     plain = distill_loss(noisy, target).item()
     # White error e: its second difference has variance 6 var(e).
     assert distill_loss(noisy, target, 1.0).item() == pytest.approx(7 * plain, rel=0.05)
+
+
+def test_a_students_window_around_held_frames_gets_one_harmonising_pass(teacher_ckpt, tmp_path, monkeypatch):
+    """1-2 steps see held frames as noise: a continuation window is noised again to the 2-step schedule's
+    last level and denoised once with them held (the student's own step there). Free windows and the
+    trained model's samplers are left as they were."""
+    from walkdiff.distill import distill
+    from walkdiff.generation import load_generator
+    from walkdiff.models.styled_ddpm import StyledMotionDiffusion
+
+    out = tmp_path / "student.ckpt"
+    distill(str(teacher_ckpt), str(out), steps=[1, 2], iterations=2, minutes=30)
+    student, teacher = load_generator(out), load_generator(teacher_ckpt)
+    calls = []
+    harmonised = StyledMotionDiffusion.harmonised
+    monkeypatch.setattr(
+        StyledMotionDiffusion,
+        "harmonised",
+        lambda self, *a, **k: calls.append(1) or harmonised(self, *a, **k),
+    )
+    style, content = torch.tensor([0, 1]), torch.tensor([0, 0])
+    known = torch.randn(2, 24, student.spec["feature_dim"])
+    mask = torch.zeros_like(known)
+    mask[:, :8] = 1.0
+    for steps in (1, 2):
+        calls.clear()
+        x = student.generate(style, content, sampler="ddim", steps=steps, inpaint=(mask, known))
+        assert calls == [1]
+        torch.testing.assert_close(x[:, :8], known[:, :8], rtol=0, atol=0)  # held frames stay exact
+        free = student.generate(style, content, sampler="ddim", steps=steps)
+        assert calls == [1]
+        assert not torch.allclose(x[:, 8:], free[:, 8:])
+    for model, sampler, steps in ((student, "ddim", 10), (teacher, "ddim", 2), (student, "dpmpp", 2)):
+        model.generate(style, content, sampler=sampler, steps=steps, inpaint=(mask, known))
+    assert calls == [1]

@@ -221,6 +221,39 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
     assert under_autocast.dtype == torch.float32 and torch.equal(under_autocast, model._positions(bent))
 
 
+def test_the_foot_height_loss_measures_the_feet_in_the_world_in_contact_heights(tiny_root):
+    """Feet one contact height too high cost 1 (times abar_t) whatever the skeleton's units, though the
+    pose relative to the root, which the position term sees, has not changed."""
+    dm = datamodule(tiny_root)
+    dm.setup("fit")
+    model = StyledMotionDiffusion(dm.spec, **TINY, lambda_foot_height=2.0, lambda_position=1.0)
+    model.normalizer.load_state_dict(dm.normalizer.state_dict())
+    model.profile = dm.profile
+    batch = next(iter(dm.train_dataloader()))
+    raw = model.normalizer.denormalize(batch["features"])
+    t = torch.zeros(len(raw), dtype=torch.long)
+    abar = float(model.diffusion.alphas_cumprod[0])
+
+    def losses(x0_hat):
+        return model.generator_losses(batch, x0_hat, x0_hat, x0_hat, t, adversarial=False)
+
+    assert losses(batch["features"])["foot_height"] == 0
+    high = raw.clone()
+    high[..., model.layout.root_height] += model.contact_spec.height_threshold
+    x0_hat = model.normalizer.normalize(high).requires_grad_(True)
+    raised = losses(x0_hat)
+    assert raised["foot_height"].item() == pytest.approx(abar, rel=1e-3)
+    assert raised["position"].item() == pytest.approx(0, abs=1e-6)
+    raised["foot_height"].backward()
+    assert x0_hat.grad[..., model.layout.root_height].abs().sum() > 0
+    assert model.total_loss({"foot_height": raised["foot_height"]}) == 2 * raised["foot_height"]
+    # Off (the default) it is not computed at all.
+    plain = StyledMotionDiffusion(dm.spec, **TINY, lambda_position=1.0)
+    plain.normalizer.load_state_dict(dm.normalizer.state_dict())
+    plain.profile = dm.profile
+    assert "foot_height" not in plain.generator_losses(batch, x0_hat, x0_hat, x0_hat, t, adversarial=False)
+
+
 def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_root, tmp_path, monkeypatch):
     """Bounded by epochs (max_time only a safety net), the same command and seed train the same number
     of epochs and steps, to the same validation losses, on a fast and a slow machine. The rerun's

@@ -344,7 +344,7 @@ def _generator_config(name: str, folder: Path, summary: str, data: dict, content
 # Train the evaluator first (walkdiff fit --config evaluator_{name}.yaml, beside this file): the
 # metrics callback reads its last checkpoint.
 """
-        + _trainer(directory, 140, "00:04:00:00", validate_every=5)
+        + _trainer(directory, 40, "00:04:00:00", validate_every=5)
         + _logger(name, name)
         + f"""\
   callbacks:
@@ -376,7 +376,7 @@ model:
     d_model: 256
     layers: 4
     heads: 4
-    dropout: 0.1
+    dropout: 0.0
     timesteps: 100
     schedule: linear
     beta_start: 1.0e-3
@@ -387,14 +387,15 @@ model:
     lambda_adv: 0.05
     lambda_velocity: 0.5
     lambda_foot: 1.0
+    lambda_foot_height: 2.0
     lambda_position: 1.0
-    adv_warmup_batches: 1000
+    adv_warmup_batches: 250
     cond_drop: 0.1
-    lr: 3.0e-4
-    lr_discriminator: 2.0e-4
-    lr_warmup_batches: 200
+    lr: 1.0e-3
+    lr_discriminator: 4.0e-4
+    lr_warmup_batches: 100
     grad_clip: 1.0
-    ema_decay: 0.998
+    ema_decay: 0.995
 """
         + _data_section(data)
     )
