@@ -8,6 +8,7 @@ import torch
 from walkdiff.diffusion import (
     PREDICTIONS,
     GaussianDiffusion,
+    ddim_sample,
     extract,
     respace,
     run_steps,
@@ -242,6 +243,23 @@ def test_a_students_window_around_held_frames_gets_one_harmonising_pass(teacher_
         free = student.generate(style, content, sampler="ddim", steps=steps)
         assert calls == [1]
         assert not torch.allclose(x[:, 8:], free[:, 8:])
+        # The same draws by hand: the student's DDIM around the held frames, then the pass, which moves
+        # the new frames (the held ones stay).
+        seeded = student.generate(
+            style, content, sampler="ddim", steps=steps, inpaint=(mask, known),
+            generator=torch.Generator().manual_seed(7),
+        )  # fmt: skip
+        assert calls == [1, 1]
+        draws = torch.Generator().manual_seed(7)
+        model_fn = student.model_fn(style, content, 1.0, student.jumps("ddim", steps, 0.0))
+        shape = (2, 24, student.spec["feature_dim"])
+        with torch.no_grad():
+            before = ddim_sample(
+                model_fn, student.diffusion, shape, steps, 0.0, generator=draws, inpaint=(mask, known)
+            )
+            after = harmonised(student, before, style, content, 1.0, (mask, known), draws)
+        torch.testing.assert_close(seeded, after)
+        assert not torch.allclose(after[:, 8:], before[:, 8:])
     for model, sampler, steps in ((student, "ddim", 10), (teacher, "ddim", 2), (student, "dpmpp", 2)):
         model.generate(style, content, sampler=sampler, steps=steps, inpaint=(mask, known))
-    assert calls == [1]
+    assert calls == [1, 1]  # none more than the last loop's two

@@ -252,10 +252,10 @@ class StyledMotionDiffusion(MotionModule):
             # A foot is planted over a step when the real motion labels it in contact at both ends.
             planted = raw[..., contacts] > 0.5
             planted = (planted[:, 1:] & planted[:, :-1]).to(raw.dtype)
-            foot_speed = velocity_hat[:, :, self._foot_joints(), :][..., [0, 2]].pow(2).sum(dim=-1)
+            feet = self._foot_joints()
+            foot_speed = velocity_hat[:, :, feet, :][..., [0, 2]].pow(2).sum(dim=-1)
             losses["foot"] = (weight * (foot_speed * planted).mean(dim=(1, 2))).mean()
             if h.lambda_foot_height > 0:
-                feet = self._foot_joints()
                 height_error = positions_hat[..., feet, 1] - positions[..., feet, 1]
                 losses["foot_height"] = (
                     weight * self._in_heights(height_error).pow(2).mean(dim=(1, 2))
@@ -414,12 +414,12 @@ class StyledMotionDiffusion(MotionModule):
         if sampler == "ddpm":
             return ddpm_sample(model_fn, self.diffusion, shape, **common)
         if sampler == "ddim":
-            x = ddim_sample(model_fn, self.diffusion, shape, steps or 10, eta, **common)
+            x = ddim_sample(model_fn, self.diffusion, shape, steps or DEFAULT_STEPS, eta, **common)
             if jumps is not None and inpaint is not None:
                 x = self.harmonised(x, style, content, guidance, inpaint, generator)
             return x
         if sampler == "dpmpp":
-            return dpm_solver_sample(model_fn, self.diffusion, shape, steps or 10, **common)
+            return dpm_solver_sample(model_fn, self.diffusion, shape, steps or DEFAULT_STEPS, **common)
         raise WalkdiffError(f"unknown sampler {sampler!r}; expected ddpm, ddim or dpmpp")
 
     def harmonised(
