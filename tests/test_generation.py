@@ -310,11 +310,23 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     student.generate(style, content, sampler="ddim", steps=2)
     assert [j.tolist() for j in seen] == [[100, 100], [50, 50], [50, 50]]  # 99 to data; 99 to 49 to data
     seen.clear()
+    # Every other sampler is the teacher's: the student carries its network, as the teacher saved it.
+    student.generate(style, content, sampler="ddim", steps=4)
+    assert not seen
+    taught = []
+    teacher_forward = student.teacher.forward
+    student.teacher.forward = lambda x, t, s, c, jump=None: taught.append(jump) or teacher_forward(x, t, s, c)
     student.generate(style, content, sampler="ddim", steps=4)
     student.generate(style, content, sampler="dpmpp", steps=2)
     student.generate(style, content, sampler="ddim", steps=2, eta=0.5)
-    assert len(seen) == 8 and all(j is None for j in seen)
-    del student.ema.module.forward
+    assert not seen and len(taught) == 8 and all(j is None for j in taught)
+    del student.ema.module.forward, student.teacher.forward
+    for name, p in model.ema.module.named_parameters():
+        assert torch.equal(dict(student.teacher.named_parameters())[name], p)
+    torch.manual_seed(3)
+    by_student = student.generate(style, content, sampler="dpmpp", steps=3)
+    torch.manual_seed(3)
+    torch.testing.assert_close(by_student, model.generate(style, content, sampler="dpmpp", steps=3))
     torch.testing.assert_close(
         dict(student.ema.module.named_parameters())["input.weight"],
         dict(student.denoiser.named_parameters())["input.weight"],
@@ -331,6 +343,14 @@ def test_distill_writes_a_student_checkpoint_every_command_takes(ckpt, model, tm
     again = ["distill", "--ckpt", str(student_path), "--out", str(tmp_path / "2.ckpt"), "--iterations", "1"]
     assert main(again) == 1
     assert "already a distilled student" in capsys.readouterr().err
+    # A student saved without its teacher (as walkdiff's first students were) is refused by name.
+    old = torch.load(student_path, map_location="cpu", weights_only=False)
+    old["state_dict"] = {k: v for k, v in old["state_dict"].items() if not k.startswith("teacher.")}
+    torch.save(old, tmp_path / "old.ckpt")
+    assert main(["sample", "--ckpt", str(tmp_path / "old.ckpt"), "--style", "old", "--no-gif",
+                 "--out", str(tmp_path / "old")]) == 1  # fmt: skip
+    said = capsys.readouterr().err
+    assert f"{tmp_path / 'old.ckpt'}: a student distilled before walkdiff kept the teacher's network" in said
 
 
 def test_a_checkpoint_without_planted_heights_loads_but_refuses_grounding(ckpt, tmp_path):

@@ -437,8 +437,8 @@ def bench_distill(
     """A distilled student's DDIM samples against its teacher's DDPM-100, DDIM and DPM-Solver++.
 
     Writes OUT (JSON): the teacher's DDPM over all T steps (the reference of `fmd_over_ddpm`), DDIM and
-    DPM-Solver++(2M) at each of the student's step counts; the student's DDPM (the reference of its rows'
-    `fmd_over_own_ddpm`) and DDIM at each of its counts. Each the mean over `seeds` seeds (the same for
+    DPM-Solver++(2M) at each of the student's step counts; the student's DDIM at each of its counts (its
+    other samplers are the teacher's, which it carries). Each the mean over `seeds` seeds (the same for
     all), scored on the teacher's real test windows. `bench sample` on the student adds its speed, seams
     and transfer.
     """
@@ -448,12 +448,16 @@ def bench_distill(
     record = torch.load(student, map_location="cpu", weights_only=False, mmap=True).get("distilled")
     if record is None:
         raise WalkdiffError("not a distilled checkpoint (made by `walkdiff distill`)", path=student)
+    carried = student_model.teacher.state_dict()
+    if any(not torch.equal(carried[k], v) for k, v in teacher_model.ema.module.state_dict().items()):
+        raise WalkdiffError(
+            f"the student was distilled from another teacher ({record['teacher']})", path=student
+        )
     counts = student_model.distilled_steps
     bench = _QualityBench(teacher_model, teacher, evaluator, num, seed, seeds, ground)
     ddpm_steps = teacher_model.diffusion.num_timesteps
     settings = [("teacher", teacher_model, "ddpm", ddpm_steps)]
     settings += [("teacher", teacher_model, sampler, k) for k in counts for sampler in ("ddim", "dpmpp")]
-    settings += [("student", student_model, "ddpm", ddpm_steps)]
     settings += [("student", student_model, "ddim", k) for k in counts]
     rows = []
     for who, model, sampler, k in settings:
@@ -461,12 +465,6 @@ def bench_distill(
         rows.append(_with_ratios({"model": who} | row, rows[0] if rows else row))
         if (who, sampler, k) == ("student", "ddim", counts[0]):
             student_windows, student_scores = first_seed
-    # The student's own DDPM too: one checkpoint, both samplers (distill's `preserve` keeps its DDPM).
-    first_student = next(i for i, s in enumerate(settings) if s[0] == "student")
-    own = rows[first_student]
-    for row in rows[first_student:]:
-        row["fmd_over_own_ddpm"] = round(row["fmd"] / own["fmd"], 3)
-        row["style_acc_over_own_ddpm"] = round(row["style_acc"] / own["style_acc"], 3)
     # --fix-feet on the samples the student is for (first seed), as `bench sample` does on DDPM's.
     fix_feet = {"before": student_scores, "after": bench.scored(_fix_feet(student_model, student_windows))}
     result = {

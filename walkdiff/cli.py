@@ -491,11 +491,6 @@ def build_parser() -> argparse.ArgumentParser:
         "and records it in the student's checkpoint; the student then depends on the machine's speed)",
     )  # fmt: skip
     p.add_argument("--lr", type=number(0, above=True), default=3e-5, help="Adam learning rate (default 3e-5)")
-    p.add_argument(
-        "--preserve", type=number(0, 1), default=0.25,
-        help="share of each batch held, without a jump, to the teacher's own output, so DDPM and the other "
-        "samplers still sample as the teacher did (default 0.25)",
-    )  # fmt: skip
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 

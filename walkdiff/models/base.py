@@ -74,6 +74,8 @@ class MotionModule(L.LightningModule):
             raise WalkdiffError(
                 f"not a {what} checkpoint ({type(error).__name__}: {error})", path=path
             ) from None
+        except WalkdiffError as error:  # raised while loading, before the file was known
+            raise WalkdiffError(error.reason, path=error.path or path, line=error.line) from None
         if model.profile is None:
             raise WalkdiffError(
                 f"the {what} checkpoint has no skeleton profile; was it saved by `walkdiff fit` of this "

@@ -135,6 +135,13 @@ class StyledMotionDiffusion(MotionModule):
             self.denoiser, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True
         )
         self.ema.requires_grad_(False)
+        # A distilled student carries its teacher's network, frozen: every sampler the student was not
+        # distilled for (DDPM, DPM-Solver++, other DDIM counts, transfer, --fix-feet) samples the teacher.
+        self.teacher = None
+        if self.distilled_steps:
+            self.teacher = MotionDenoiser(
+                spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout=0.0
+            ).requires_grad_(False)
         # Where real planted feet stand (contact joints, data units): generated clips are grounded to it.
         # Measured on the unmirrored training clips: a mirrored copy keeps Xia's asymmetric offsets, so
         # its feet stand up to ~0.2 units off where a real foot on that side does.
@@ -155,6 +162,11 @@ class StyledMotionDiffusion(MotionModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         super().on_load_checkpoint(checkpoint)
+        if self.distilled_steps and not any(k.startswith("teacher.") for k in checkpoint["state_dict"]):
+            raise WalkdiffError(
+                "a student distilled before walkdiff kept the teacher's network in it; distil it again "
+                "with `walkdiff distill`"
+            )
         # Checkpoints saved before walkdiff measured planted feet load, but cannot be grounded.
         self.grounded_heights = "planted_height" in checkpoint["state_dict"]
         checkpoint["state_dict"].setdefault("planted_height", torch.full((4,), float("nan")))
@@ -435,7 +447,7 @@ class StyledMotionDiffusion(MotionModule):
         denoised in one step with the frames held. In 1 or 2 steps the network sees the held frames only
         as noise (t = T - 1) or half drowned (t = T/2 - 1), and the new frames do not join them smoothly:
         this pass shows it the held frames and its own at once, at the level of the 2-step schedule's last
-        step, which the student was distilled for (the plain network when it was not)."""
+        step, which the student was distilled for (the teacher's network when it was not)."""
         level = respace(self.diffusion.num_timesteps, 2)[-1]
         model_fn = self.model_fn(style, content, guidance, self.jumps("ddim", 2, 0.0))
         t = torch.full((x.shape[0],), level, device=x.device)
@@ -467,8 +479,9 @@ class StyledMotionDiffusion(MotionModule):
         jumps: torch.Tensor | None = None,
     ):
         """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance.
-        `jumps` (T,): the jump each trained step takes (`jumps`), for a distilled student's DDIM."""
-        ema = self.ema.module.eval()
+        `jumps` (T,): the jump each trained step takes (`jumps`), for a distilled student's DDIM; without
+        them a student's teacher samples."""
+        ema = (self.ema.module if jumps is not None or self.teacher is None else self.teacher).eval()
 
         def net(x, t, s, c):
             return ema(x, t, s, c, None if jumps is None else jumps[t])
