@@ -207,6 +207,8 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
         bench_distill(report_path, str(ckpt), str(ckpt), evaluator, num=8, seeds=1)
     student = tmp_path / "student.ckpt"
     distill(str(ckpt), str(student), steps=[1, 2], iterations=2, teacher_steps=5)
+    with pytest.raises(WalkdiffError, match="the student was distilled from another teacher"):
+        bench_distill(report_path, str(student), str(student), evaluator, num=8, seeds=1)
     report = bench_distill(report_path, str(ckpt), str(student), evaluator, num=16, seeds=1)
     rows = [(r["model"], r["sampler"], r["steps"]) for r in report["quality"]]
     assert rows == [("teacher", "ddpm", 10), ("teacher", "ddim", 1), ("teacher", "dpmpp", 1),

@@ -448,8 +448,8 @@ def bench_distill(
     record = torch.load(student, map_location="cpu", weights_only=False, mmap=True).get("distilled")
     if record is None:
         raise WalkdiffError("not a distilled checkpoint (made by `walkdiff distill`)", path=student)
-    carried = student_model.teacher.state_dict()
-    if any(not torch.equal(carried[k], v) for k, v in teacher_model.ema.module.state_dict().items()):
+    carried, given = student_model.teacher.state_dict(), teacher_model.ema.module.state_dict()
+    if carried.keys() != given.keys() or any(not torch.equal(carried[k], v) for k, v in given.items()):
         raise WalkdiffError(
             f"the student was distilled from another teacher ({record['teacher']})", path=student
         )
