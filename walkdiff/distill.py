@@ -22,10 +22,11 @@ jumps. Every other sampler (DDPM, DPM-Solver++, other DDIM counts, transfer, --f
 teacher's plain denoiser, and the student checkpoint carries it, frozen: distillation moves the estimates
 those samplers rely on. Holding a share of each batch to the teacher's output instead (as walkdiff did
 until the 1- and 2-step students) kept the student's own DDPM near but not at the teacher's: FMD 230
-against 150 and transfer recognised as the target style 57% of the time against 98% (README).
+against 150, and transfer recognised as the target style 57% of the time against 96% through the
+carried teacher (README).
 
-The student is saved as a checkpoint of the same model (with `distilled_steps` set and a `distilled`
-record), so every command takes it.
+The student is saved as a checkpoint of the same model (with `distilled_steps` set, the teacher's
+weights and a `distilled` record), so every command takes it.
 """
 
 from __future__ import annotations
