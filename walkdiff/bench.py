@@ -451,7 +451,9 @@ def bench_distill(
     carried, given = student_model.teacher.state_dict(), teacher_model.ema.module.state_dict()
     if carried.keys() != given.keys() or any(not torch.equal(carried[k], v) for k, v in given.items()):
         raise WalkdiffError(
-            f"the student was distilled from another teacher ({record['teacher']})", path=student
+            f"--teacher {teacher}: the student was distilled from another teacher ({record['teacher']}), "
+            "whose network it carries; pass that checkpoint",
+            path=student,
         )
     counts = student_model.distilled_steps
     bench = _QualityBench(teacher_model, teacher, evaluator, num, seed, seeds, ground)

@@ -257,10 +257,8 @@ def _save(
     checkpoint, teacher, student, out_path, teacher_ckpt, settings, batches, planned, elapsed, losses
 ) -> dict:
     state = checkpoint["state_dict"]
-    for (
-        name,
-        value,
-    ) in student.state_dict().items():  # both copies, so sampling and any further training agree
+    # The student in both copies, so sampling and any further training agree.
+    for name, value in student.state_dict().items():
         state[f"ema.module.{name}"] = value
         state[f"denoiser.{name}"] = value.clone()
     for name, value in teacher.state_dict().items():  # what the samplers it was not distilled for use

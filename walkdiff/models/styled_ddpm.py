@@ -120,10 +120,12 @@ class StyledMotionDiffusion(MotionModule):
 
         self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
-        self.denoiser = MotionDenoiser(
-            spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout,
-            jump_conditioning=bool(self.distilled_steps),
-        )  # fmt: skip
+
+        def denoiser(dropout: float, jump_conditioning: bool) -> MotionDenoiser:
+            return MotionDenoiser(spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4,
+                                  dropout, jump_conditioning)  # fmt: skip
+
+        self.denoiser = denoiser(dropout, jump_conditioning=bool(self.distilled_steps))
         self.discriminator = (
             MotionDiscriminator(
                 spec["feature_dim"], num_styles, num_contents, conditional=conditional_discriminator
@@ -139,9 +141,7 @@ class StyledMotionDiffusion(MotionModule):
         # distilled for (DDPM, DPM-Solver++, other DDIM counts, transfer, --fix-feet) samples the teacher.
         self.teacher = None
         if self.distilled_steps:
-            self.teacher = MotionDenoiser(
-                spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4, dropout=0.0
-            ).requires_grad_(False)
+            self.teacher = denoiser(0.0, jump_conditioning=False).requires_grad_(False)
         # Where real planted feet stand (contact joints, data units): generated clips are grounded to it.
         # Measured on the unmirrored training clips: a mirrored copy keeps Xia's asymmetric offsets, so
         # its feet stand up to ~0.2 units off where a real foot on that side does.
