@@ -40,7 +40,7 @@ train: install $(EVALUATOR)
 
 # Prints each experiment's run list first: MLflow 3.17 opens experiments on its GenAI pages unless told.
 ui: install
-	@$(PY) -c "from walkdiff.tracking import print_ui_addresses as p; p('$(MLFLOW_DB)', 'http://127.0.0.1:$(UI_PORT)')"
+	@$(PY) -c "from walkdiff.common.tracking import print_ui_addresses as p; p('$(MLFLOW_DB)', 'http://127.0.0.1:$(UI_PORT)')"
 	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow server \
 	  --backend-store-uri $(MLFLOW_DB) --default-artifact-root ./mlruns/artifacts \
 	  --host 127.0.0.1 --port $(UI_PORT) --workers 1

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from walkdiff.paths import data_root
+from walkdiff.common.paths import data_root
 
 REQUIRE_DATA = bool(os.environ.get("CI") or os.environ.get("WALKDIFF_REQUIRE_DATA"))
 

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from walkdiff.files import write_text
+from walkdiff.common.files import write_text
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.resample import resample
 from walkdiff.motion.rotations import euler_to_matrix

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from walkdiff.cli import build_parser, main
+from walkdiff.cli.main import build_parser, main
 
 
 @pytest.fixture(autouse=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from walkdiff.bench import bench_gesture, report
+from walkdiff.bench.benchmarks import bench_gesture, report
 
 
 def test_report_writes_and_prints_the_result(tmp_path, capsys):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.rotations import (
     euler_to_matrix,

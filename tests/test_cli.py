@@ -9,7 +9,7 @@ import pytest
 import synthetic
 import yaml
 
-from walkdiff.cli import main
+from walkdiff.cli.main import main
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.mirror import mirror
@@ -112,7 +112,8 @@ def test_unknown_tracking_uri_fails_before_training(xia_dir, capsys):
 
 
 def test_cli_offers_every_sampler_the_samplers_know():
-    from walkdiff import cli, diffusion
+    from walkdiff import diffusion
+    from walkdiff.cli import main as cli
 
     assert cli.SAMPLERS == diffusion.SAMPLERS
 
@@ -166,7 +167,7 @@ def test_json_outputs_are_strict(tmp_path):
     """Reports and manifests never hold NaN or Infinity, which strict JSON readers refuse."""
     import json
 
-    from walkdiff.files import write_json
+    from walkdiff.common.files import write_json
 
     def refuse(constant):
         raise ValueError(f"non-standard JSON constant {constant}")

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import synthetic
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data import xia
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.representation import FeatureLayout
 
 # Clips per style and group (walk/run/jump/punch/kick/trans), from ../shared/data/README.md.

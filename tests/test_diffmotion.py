@@ -12,12 +12,7 @@ import torch
 from PIL import Image
 from test_speech import write_take
 
-from walkdiff import memory
-from walkdiff.cli import main
-from walkdiff.data.speech import SpeechDataModule
-from walkdiff.diffusion import SamplerChoice
-from walkdiff.errors import WalkdiffError
-from walkdiff.gesture import (
+from walkdiff.autoregressive.gesture import (
     beat_consistency,
     beat_gain,
     diversity,
@@ -28,6 +23,11 @@ from walkdiff.gesture import (
     pck,
     shift_beats,
 )
+from walkdiff.cli.main import main
+from walkdiff.common import memory
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.data.speech import SpeechDataModule
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.diffmotion import ATEncoder, DiffMotion
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.filters import savgol
@@ -345,7 +345,7 @@ def test_config_trains_through_the_cli(trained, tmp_path, monkeypatch):
 
 
 def test_sample_callback_writes_held_out_audio_clips(trained, tmp_path):
-    from walkdiff.gesture import GestureSamples
+    from walkdiff.autoregressive.gesture import GestureSamples
 
     model = load_model(trained[0])
     dm = SpeechDataModule(str(trained[1]), window=40, past=5, lookahead=8)

@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import (
     GaussianDiffusion,
     beta_schedule,
@@ -21,7 +22,6 @@ from walkdiff.diffusion import (
     run_steps,
     step_coefficients,
 )
-from walkdiff.errors import WalkdiffError
 
 PREDICTIONS = ("eps", "x0", "v")
 

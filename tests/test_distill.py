@@ -15,7 +15,7 @@ from walkdiff.diffusion import (
     step_coefficients,
     step_jumps,
 )
-from walkdiff.distill import ddim_targets, student_steps
+from walkdiff.styled.distill import ddim_targets, student_steps
 
 
 def _diffusion(prediction: str) -> GaussianDiffusion:
@@ -79,7 +79,7 @@ def test_one_ddim_step_with_the_target_lands_on_the_teachers_solution(k):
 def test_every_row_asks_a_student_step_for_more_than_the_teachers_one_step_output():
     """Each row: a window noised to the start t of a student step, that step's jump, and the DDIM target
     of the teacher's solution (not the teacher's own one-step output)."""
-    from walkdiff.distill import student_targets
+    from walkdiff.styled.distill import student_targets
 
     diffusion = _diffusion("eps")
     steps = student_steps(diffusion, [1, 2], solver_steps=10)
@@ -159,7 +159,7 @@ def _slowed(monkeypatch, seconds: float) -> None:
     """Every batch of distillation takes `seconds` longer, as on a slower or busier machine."""
     import time
 
-    from walkdiff import distill
+    from walkdiff.styled import distill
 
     targets = distill.student_targets
     monkeypatch.setattr(distill, "student_targets", lambda *a: time.sleep(seconds) or targets(*a))
@@ -168,7 +168,7 @@ def _slowed(monkeypatch, seconds: float) -> None:
 def test_the_same_command_gives_the_same_student_on_a_fast_and_a_slow_machine(
     teacher_ckpt, tmp_path, monkeypatch
 ):
-    from walkdiff.distill import distill
+    from walkdiff.styled.distill import distill
 
     fast = distill(str(teacher_ckpt), str(tmp_path / "fast.ckpt"), steps=4, iterations=5, minutes=30)
     _slowed(monkeypatch, 0.2)
@@ -182,7 +182,7 @@ def test_the_same_command_gives_the_same_student_on_a_fast_and_a_slow_machine(
 
 
 def test_minutes_is_a_safety_net_that_says_how_much_was_done(teacher_ckpt, tmp_path, monkeypatch, capsys):
-    from walkdiff.cli import main
+    from walkdiff.cli.main import main
 
     _slowed(monkeypatch, 0.3)
     out = tmp_path / "student.ckpt"
@@ -206,7 +206,7 @@ def test_minutes_is_a_safety_net_that_says_how_much_was_done(teacher_ckpt, tmp_p
 
 
 def test_the_acceleration_term_weighs_frame_to_frame_error_not_a_steady_offset():
-    from walkdiff.distill import distill_loss
+    from walkdiff.styled.distill import distill_loss
 
     target = torch.randn(64, 24, 8, generator=torch.Generator().manual_seed(3))
     offset = target + 0.1  # the same error on every frame: no acceleration
@@ -221,9 +221,9 @@ def test_a_students_window_around_held_frames_gets_one_harmonising_pass(teacher_
     """1-2 steps see held frames as noise: a continuation window is noised again to the 2-step schedule's
     last level and denoised once with them held (the student's own step there). Free windows and the
     trained model's samplers are left as they were."""
-    from walkdiff.distill import distill
-    from walkdiff.generation import load_generator
     from walkdiff.models.styled_ddpm import StyledMotionDiffusion
+    from walkdiff.styled.distill import distill
+    from walkdiff.styled.generation import load_generator
 
     out = tmp_path / "student.ckpt"
     distill(str(teacher_ckpt), str(out), steps=[1, 2], iterations=2, minutes=30)

@@ -10,8 +10,8 @@ import pytest
 import torch
 from synthetic import xia_profile
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.errors import WalkdiffError
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.representation import FeatureLayout

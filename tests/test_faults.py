@@ -16,9 +16,9 @@ import pytest
 import synthetic
 from PIL import Image
 
-from walkdiff.cli import main
+from walkdiff.cli.main import main
+from walkdiff.common.files import clean_temporaries, output_lock, temporary_file, write_text
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.files import clean_temporaries, output_lock, temporary_file, write_text
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 from walkdiff.motion.bvh import read_bvh
 
@@ -47,7 +47,7 @@ def plain_argv(monkeypatch):
 
 def _walkdiff(*args: str) -> subprocess.Popen:
     env = {**os.environ, "WALKDIFF_PROGRESS": "0"}
-    command = [sys.executable, "-m", "walkdiff.cli", *args]
+    command = [sys.executable, "-m", "walkdiff.cli.main", *args]
     return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -136,7 +136,9 @@ def test_the_lock_is_released_on_error_and_refuses_while_held(tmp_path):
         raise RuntimeError
     assert not (tmp_path / ".report.json.lock").exists()
     with output_lock(target, "test"):
-        script = f"from walkdiff.files import output_lock\nwith output_lock({str(target)!r}, 'x'): pass"
+        script = (
+            f"from walkdiff.common.files import output_lock\nwith output_lock({str(target)!r}, 'x'): pass"
+        )
         holder = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
         assert (
             holder.returncode == 1

@@ -35,7 +35,7 @@ def walkdiff_fit(cwd: Path, *args: str, **popen) -> subprocess.Popen:
         WALKDIFF_PROGRESS="0",
         OMP_NUM_THREADS="1",
     )
-    command = [sys.executable, "-m", "walkdiff.cli", "fit", *args]
+    command = [sys.executable, "-m", "walkdiff.cli.main", "fit", *args]
     return subprocess.Popen(command, cwd=cwd, env=env, text=True, **popen)
 
 

@@ -1,4 +1,4 @@
-"""The folder dataset (walkdiff.data.folder) and `walkdiff data scan` (walkdiff.scan) on real Xia clips.
+"""The folder dataset (walkdiff.data.folder) and `walkdiff data scan` (walkdiff.data.scan) on real Xia clips.
 
 The folders are built here from copies of Xia clips under neutral names (`take_NNN.bvh`, some in
 sub-folders), so every label must come from a manifest, a pattern or a default; the Xia file names they
@@ -17,12 +17,12 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data import xia
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.datasets import open_source
 from walkdiff.data.folder import FolderSource, split_counts
-from walkdiff.errors import WalkdiffError
-from walkdiff.scan import config_name, scan
+from walkdiff.data.scan import config_name, scan
 
 STYLES = ("angry", "neutral")
 CONTENT_IDS = ("01", "13")  # walk, run

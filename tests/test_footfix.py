@@ -6,9 +6,9 @@ import numpy as np
 import synthetic
 import torch
 
-from walkdiff.footfix import ankle_offsets, contact_runs, fix_feet, fix_feet_features, two_bone_ik
 from walkdiff.metrics.physics import FootSkating
 from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.footfix import ankle_offsets, contact_runs, fix_feet, fix_feet_features, two_bone_ik
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import FeatureLayout, encode, features_to_positions
 from walkdiff.motion.resample import resample
@@ -155,7 +155,7 @@ def test_fix_feet_features_changes_only_rotations(xia_dir):
 def test_grounding_puts_planted_feet_back_on_the_training_floor(xia_dir):
     """Real clips, lifted or sunk by a few units, come back to where their planted feet stood."""
     from walkdiff.data.xia import list_clips, load
-    from walkdiff.footfix import ground, planted_heights
+    from walkdiff.motion.footfix import ground, planted_heights
 
     clips = [c for c in list_clips(xia_dir) if c.content == 0][:8]
     raws = [encode(resample(load(c), 30.0), synthetic.xia_profile(load(c))) for c in clips]

@@ -17,11 +17,14 @@ import synthetic
 import torch
 from PIL import Image
 
-from walkdiff.cli import main
+from walkdiff.cli.main import main
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.diffusion import GaussianDiffusion, log_snr_timesteps
-from walkdiff.errors import WalkdiffError
-from walkdiff.generation import (
+from walkdiff.models.styled_ddpm import StyledMotionDiffusion
+from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.motion.representation import features_to_positions
+from walkdiff.styled.generation import (
     Sampling,
     generate_long,
     joint_speeds,
@@ -36,9 +39,6 @@ from walkdiff.generation import (
     window_plan,
     windowed,
 )
-from walkdiff.models.styled_ddpm import StyledMotionDiffusion
-from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.motion.representation import features_to_positions
 
 
 @pytest.fixture(scope="module")
@@ -462,7 +462,7 @@ def test_frames_beyond_the_memory_estimate_are_refused_before_any_work(ckpt, tmp
 
 
 def test_memory_benchmark_records_peak_rss_per_frame_count(ckpt, tmp_path):
-    from walkdiff.bench import bench_memory
+    from walkdiff.bench.benchmarks import bench_memory
 
     result = bench_memory(str(tmp_path / "mem.json"), str(ckpt), frames=(60,))
     (row,) = json.loads((tmp_path / "mem.json").read_text())["sample"]

@@ -10,7 +10,7 @@ import roma
 import torch
 from disguise import disguise
 
-from walkdiff.cli import main
+from walkdiff.cli.main import main
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.profile import SkeletonProfile

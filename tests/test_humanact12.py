@@ -15,12 +15,12 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from walkdiff.callbacks.samples import SampleClips
-from walkdiff.cli import main
+from walkdiff.cli.main import main
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data import humanact12
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.errors import WalkdiffError
-from walkdiff.evaluation import load_evaluator
+from walkdiff.evaluation.evaluate import load_evaluator
 from walkdiff.models.action_evaluator import ActionEvaluator
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 from walkdiff.motion.bvh import read_bvh, write_bvh

@@ -11,7 +11,7 @@ import scipy.linalg
 import torch
 from torchmetrics.classification import MulticlassAccuracy, MulticlassConfusionMatrix
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.metrics import (
     Diversity,
     FootSkating,

@@ -14,7 +14,7 @@ import pytest
 import roma
 import torch
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import forward_kinematics, motion_world_positions
 from walkdiff.motion.mirror import find_mirror_pairs, mirror, rest_corrections

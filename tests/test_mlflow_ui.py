@@ -21,8 +21,8 @@ import yaml
 from mlflow.tracking import MlflowClient
 from PIL import Image
 
-from walkdiff.browser import Browser, find_chromium
-from walkdiff.tracking import ui_addresses
+from walkdiff.common.tracking import ui_addresses
+from walkdiff.preview.browser import Browser, find_chromium
 
 # CI installs Debian's chromium (.ci/run); elsewhere the browser test runs where one is installed.
 REQUIRE_BROWSER = os.environ.get("WALKDIFF_REQUIRE_BROWSER") == "1"
@@ -211,7 +211,7 @@ def test_the_run_shows_about_one_parameter_per_hyperparameter(ui, tmp_path):
 
 
 def test_make_ui_on_a_store_that_does_not_exist_yet_lists_nothing_and_creates_nothing(tmp_path, capsys):
-    from walkdiff.tracking import print_ui_addresses
+    from walkdiff.common.tracking import print_ui_addresses
 
     store = tmp_path / "mlruns" / "mlflow.db"
     assert ui_addresses(f"sqlite:///{store}", "http://127.0.0.1:5000") == {}

@@ -20,7 +20,7 @@ import pytest
 import synthetic
 from omegaconf import OmegaConf
 
-from walkdiff.cli import main
+from walkdiff.cli.main import main
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -286,7 +286,7 @@ def test_a_root_that_stays_while_the_body_walks_is_flagged(xia_dir):
 
 
 def test_profile_overrides_are_checked_and_shown(xia_dir):
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     motion = read_bvh(xia_dir / "neutral_01_000.bvh")
     profile = SkeletonProfile.detect(motion, {"up": [0, 1, 0.2], "units": "cm", "contact_speed": 7})

@@ -10,14 +10,14 @@ import synthetic
 from PIL import Image
 from test_render import extent, gif_frames, mask
 
-from walkdiff import render
+from walkdiff.autoregressive.walk import plot_paths
 from walkdiff.callbacks.samples import SampleClips, real_references
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.profile import ContactSpec
-from walkdiff.render import Marks, render_gif, render_strobe
-from walkdiff.walk import plot_paths
+from walkdiff.preview import render
+from walkdiff.preview.render import Marks, render_gif, render_strobe
 
 NAMES = ["Hips", "LeftUpLeg", "LeftFoot", "RightUpLeg", "RightFoot", "Spine", "Head"]
 PARENTS = np.array([-1, 0, 1, 0, 3, 0, 5])

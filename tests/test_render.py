@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from PIL import Image, ImageSequence
 
-from walkdiff import render
-from walkdiff.errors import WalkdiffError
-from walkdiff.render import render_gif, render_png
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.preview import render
+from walkdiff.preview.render import render_gif, render_png
 
 NAMES = ["Hips", "Spine", "Head", "LeftUpLeg", "LeftFoot", "RightUpLeg", "RightFoot", "LeftHand", "RightHand"]
 PARENTS = np.array([-1, 0, 1, 0, 3, 0, 5, 1, 1])
@@ -221,7 +221,7 @@ def test_real_xia_clip_renders_quickly(xia_dir, tmp_path):
 def test_mp4_has_every_frame_and_the_sound_for_as_long(tmp_path):
     import av
 
-    from walkdiff.video import write_mp4
+    from walkdiff.preview.video import write_mp4
 
     frames = [Image.new("RGB", (321, 241), (10 * k, 100, 200)) for k in range(25)]  # odd sizes: cropped
     rate = 16000

@@ -16,8 +16,8 @@ from synthetic import xia_profile
 from test_evaluation import setup  # noqa: F401  (the module fixture: a data subset and an evaluator)
 from torchmetrics.image.kid import poly_mmd
 
-from walkdiff.cli import main
-from walkdiff.errors import WalkdiffError
+from walkdiff.cli.main import main
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.metrics import FrechetMotionDistance
 from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.motion.body_features import BodyFrame, resample_positions

@@ -11,6 +11,7 @@ import soundfile
 import synthetic
 import torch
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.speech import (
     NeutralPose,
     SpeechDataModule,
@@ -22,7 +23,6 @@ from walkdiff.data.speech import (
     log_mel,
     read_wav,
 )
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.profile import SkeletonProfile

@@ -11,7 +11,7 @@ import pytest
 import synthetic
 from mlflow.tracking import MlflowClient
 
-from walkdiff.cli import main
+from walkdiff.cli.main import main
 
 
 @pytest.fixture(scope="module")

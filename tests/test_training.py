@@ -15,8 +15,8 @@ import pytest
 import synthetic
 import torch
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.errors import WalkdiffError
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion, TrainingDiverged
 
 TINY = dict(
@@ -146,7 +146,7 @@ def test_ddp_two_processes_through_the_cli(tiny_root, tmp_path):
     env = dict(os.environ, WALKDIFF_DATA=str(tiny_root), PYTHONWARNINGS="ignore")
     config = Path(__file__).parents[1] / "conf" / "xia_cpu.yaml"
     command = [
-        sys.executable, "-m", "walkdiff.cli", "fit", "--config", str(config),
+        sys.executable, "-m", "walkdiff.cli.main", "fit", "--config", str(config),
         "--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu",
         "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
         "--trainer.check_val_every_n_epoch", "1", "--trainer.enable_progress_bar", "false",
@@ -258,7 +258,7 @@ def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_roo
     """Bounded by epochs (max_time only a safety net), the same command and seed train the same number
     of epochs and steps, to the same validation losses, on a fast and a slow machine. The rerun's
     checkpoints go to a folder of their own and last.ckpt follows them."""
-    from walkdiff.cli import main
+    from walkdiff.cli.main import main
 
     monkeypatch.chdir(tmp_path)  # the config's mlruns/ and checkpoints/ land here
     monkeypatch.setattr("sys.argv", ["walkdiff"])  # LightningCLI warns about pytest's own arguments
@@ -311,7 +311,7 @@ def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_p
 
 
 def test_bar_rows_find_the_first_epoch_at_bar_and_the_one_from_which_it_stays():
-    from walkdiff.bench import _bar_rows, _first
+    from walkdiff.bench.benchmarks import _bar_rows, _first
 
     bar = {"style_acc": 0.8, "fmd": 10.0, "skate_ratio": 0.2}
     values = [(0.5, 50.0, 0.1), (0.9, 9.0, 0.1), (0.9, 11.0, 0.1), (0.9, 8.0, 0.2), (1.0, 7.0, 0.15)]
@@ -340,8 +340,8 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
     """`walkdiff bench train --to-bar` on a tiny config: its measurements, their times and the bar."""
     from mlflow import MlflowClient
 
-    from walkdiff.bench import BAR
-    from walkdiff.cli import main
+    from walkdiff.bench.benchmarks import BAR
+    from walkdiff.cli.main import main
     from walkdiff.models.evaluator import MotionEvaluator
 
     L.seed_everything(0)
@@ -401,7 +401,7 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
 
 
 def test_bench_train_times_a_config_in_its_own_precision(tiny_root, tmp_path):
-    from walkdiff.bench import bench_train
+    from walkdiff.bench.benchmarks import bench_train
 
     config = tmp_path / "bf16.yaml"
     text = probes.tiny_fit_config(tiny_root, "bf16", epochs=1, batches=4, callbacks=[])

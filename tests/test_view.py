@@ -16,7 +16,7 @@ import pytest
 from disguise import disguise
 
 from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.view import ROW_SPACING, WINDOW, lay_out, limb_pixels, load_clip, skeletons_shown
+from walkdiff.preview.view import ROW_SPACING, WINDOW, lay_out, limb_pixels, load_clip, skeletons_shown
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # CI installs Debian's chromium (.ci/run); elsewhere the browser test runs where one is installed.
@@ -51,7 +51,7 @@ def test_clips_stand_up_in_metres_and_walk_the_same_way_in_rows(clips):
 def test_the_page_shows_the_skeletons_in_a_headless_browser(clips, tmp_path):
     assert CHROMIUM is not None, "CI must have chromium: .ci/run installs Debian's package"
     server = subprocess.Popen(
-        [sys.executable, "-m", "walkdiff.cli", "view", *map(str, clips), "--port", "0"],
+        [sys.executable, "-m", "walkdiff.cli.main", "view", *map(str, clips), "--port", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
@@ -86,7 +86,7 @@ def test_the_page_shows_the_skeletons_in_a_headless_browser(clips, tmp_path):
 
 @pytest.mark.skipif(CHROMIUM is None and not REQUIRE_BROWSER, reason="no chromium here (CI installs it)")
 def test_bench_view_times_the_page_until_the_skeletons_show(clips, tmp_path, capsys):
-    from walkdiff.cli import main
+    from walkdiff.cli.main import main
 
     out = tmp_path / "view.json"
     assert main(["bench", "view", *map(str, clips), "--repeats", "1", "--out", str(out)]) == 0

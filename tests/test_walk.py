@@ -13,16 +13,16 @@ import synthetic
 import torch
 from PIL import Image
 
-from walkdiff.cli import main
+from walkdiff.autoregressive.walk import load_walker, path_error
+from walkdiff.cli.main import main
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.xia import list_clips, load
-from walkdiff.errors import WalkdiffError
 from walkdiff.models.path_walker import PathWalker, advance_root, local_offsets
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import FeatureLayout, encode, root_trajectory, yaw_matrix
 from walkdiff.motion.resample import resample
-from walkdiff.walk import load_walker, path_error
 
 TINY = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_layers=2, timesteps=8)
 
@@ -246,7 +246,7 @@ def test_walker_training_preview_draws_the_path(trained, tmp_path):
     """conf/walk_xia.yaml's callback: the first style walks a fixed path; the still (with the path on the
     ground), the plot (in metres), BVH, GIF and MP4 come out."""
     from walkdiff.callbacks.samples import WalkSamples
-    from walkdiff.render import PATH
+    from walkdiff.preview.render import PATH
 
     model = load_walker(trained)
     points = [[0.0, 0.0], [0.4, 0.0], [0.8, 0.2]]  # metres: ~16 units of the synthetic skeleton

@@ -15,8 +15,8 @@ from pathlib import Path
 
 from lightning.pytorch.callbacks import ModelCheckpoint
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import link_atomic
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import link_atomic
 
 RUN_FOLDER_TAG = "walkdiff.checkpoints"  # the MLflow tag naming a run's checkpoint folder
 

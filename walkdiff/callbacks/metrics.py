@@ -14,9 +14,9 @@ from torchmetrics.classification import MulticlassConfusionMatrix
 
 from walkdiff.callbacks.checkpoints import mlflow_logger
 from walkdiff.callbacks.tracking import checkpoint_tags
-from walkdiff.errors import WalkdiffError
-from walkdiff.evaluation import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
-from walkdiff.tracking import log_file
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.tracking import log_file
+from walkdiff.evaluation.evaluate import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
 
 
 class MotionMetrics(L.Callback):

@@ -19,13 +19,13 @@ import numpy as np
 import torch
 from PIL import Image
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.generation import Sampling, generate_long
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.tracking import log_file
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import decode
-from walkdiff.render import Marks, PreviewCap, render_gif, render_strobe
-from walkdiff.tracking import log_file
+from walkdiff.preview.render import Marks, PreviewCap, render_gif, render_strobe
+from walkdiff.styled.generation import Sampling, generate_long
 
 log = logging.getLogger(__name__)
 
@@ -224,8 +224,8 @@ class WalkSamples(L.Callback):
     def write(
         self, pl_module, logger, artifact_dir: str, folder: Path | None = None, step: int = 0
     ) -> list[Path]:
+        from walkdiff.autoregressive.walk import path_error, plot_paths, render_walk, to_motion, walk_paths
         from walkdiff.motion.path import Polyline
-        from walkdiff.walk import path_error, plot_paths, render_walk, to_motion, walk_paths
 
         styles = list(pl_module.spec["styles"])
         walked = [s for s, speed in zip(styles, pl_module.style_speed.tolist(), strict=True) if speed > 0]

@@ -2,9 +2,9 @@
 
 - The experiment is marked a model-training one (`mlflow.experimentKind`). MLflow 3.17's UI does not
   read that mark to choose an experiment's landing page (its sidebar's switch does, GenAI by default):
-  `make ui` prints each experiment's run-list address (`walkdiff.tracking.ui_addresses`).
+  `make ui` prints each experiment's run-list address (`walkdiff.common.tracking.ui_addresses`).
 - The git commit of the code and whether it had uncommitted changes.
-- The process and host, and the runs of killed processes closed (`walkdiff.tracking.close_dead_runs`).
+- The process and host, and the runs of killed processes closed (`walkdiff.common.tracking.close_dead_runs`).
 - System metrics (CPU, memory, GPU) every 10 s, by MLflow's own monitor.
 - The best and last checkpoint of every RunCheckpoint, logged once at the end of training under
   `checkpoints/` with what they were chosen by (Lightning's logger logs one callback's only).
@@ -23,7 +23,7 @@ from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.utilities.rank_zero import rank_zero_only
 
 from walkdiff.callbacks.checkpoints import RunCheckpoint, mlflow_logger
-from walkdiff.tracking import close_dead_runs, tag_process
+from walkdiff.common.tracking import close_dead_runs, tag_process
 
 EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
 RUN_KEY = "walkdiff_mlflow_run"  # in checkpoints: the run that wrote them

@@ -6,7 +6,7 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 
 @dataclass(frozen=True)

@@ -11,10 +11,10 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.clips import ClipInfo, ContentSelection
 from walkdiff.data.datasets import open_source
 from walkdiff.data.preprocess import ProcessedClips, detect_profile, preprocess
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, Normalizer
 from walkdiff.motion.skeleton import Skeleton

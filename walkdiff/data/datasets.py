@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.paths import data_root, dataset_dir
 from walkdiff.data.clips import ClipInfo, ContentSelection
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.skeleton import Motion
-from walkdiff.paths import data_root, dataset_dir
 
 # Datasets with conventions of their own: one module each (STYLES, GROUPS, PROFILE, list_clips(folder),
 # split_clips(clips, selection), load(clip) -> Motion).

@@ -40,9 +40,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import read_utf8
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import read_utf8
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.skeleton import Motion
 

@@ -31,8 +31,8 @@ import numpy as np
 import roma
 import torch
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.smpl import BVH_ORDER, NUM_JOINTS, SMPL_NAMES, rest_offsets, smpl_skeleton
 

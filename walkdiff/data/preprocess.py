@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import clean_temporaries, write_atomic
+from walkdiff.common.progress import progress as progress_bar
 from walkdiff.data.clips import ClipInfo
 from walkdiff.data.datasets import MotionSource
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import clean_temporaries, write_atomic
 from walkdiff.motion.mirror import mirror as mirror_motion
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import encode
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Skeleton
-from walkdiff.progress import progress as progress_bar
 
 # Bump when encode() or the loaders change what they produce: old caches then rebuild.
 FEATURES_VERSION = 2

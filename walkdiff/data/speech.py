@@ -28,15 +28,15 @@ import roma
 import torch
 from torch.utils.data import Dataset
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.paths import dataset_dir
 from walkdiff.data.datamodule import WindowLoaders
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import Normalizer
 from walkdiff.motion.resample import resample
 from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion, Skeleton
-from walkdiff.paths import dataset_dir
 from walkdiff.spec import NeutralPose, SpeechSpec
 
 log = logging.getLogger(__name__)

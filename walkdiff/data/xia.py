@@ -8,8 +8,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
-from walkdiff.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.skeleton import Motion
 

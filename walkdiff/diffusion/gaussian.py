@@ -9,8 +9,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion.schedules import beta_schedule
-from walkdiff.errors import WalkdiffError
 
 PREDICTIONS = ("eps", "x0", "v")
 

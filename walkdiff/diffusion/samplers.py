@@ -27,13 +27,13 @@ from dataclasses import dataclass
 
 import torch
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion.gaussian import GaussianDiffusion
-from walkdiff.errors import WalkdiffError
 
 # model_fn(x_t, t) -> network output; t is a long tensor (B,) of trained timesteps.
 ModelFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
-# False, True (a bar of walkdiff.progress) or a hook called as hook(steps_done, steps_total) after every
-# step (walkdiff.progress.step_hook feeds one bar over many runs).
+# False, True (a progress bar) or a hook called as hook(steps_done, steps_total) after every
+# step (walkdiff.common.progress.step_hook feeds one bar over many runs).
 Progress = bool | Callable[[int, int], None]
 # (mask, known_x0): where known_x0 is kept; the mask broadcasts to the sample's shape. A boolean mask
 # holds its region at every step. A float mask m in [0, 1] holds an element while the step's t >= (1 - m) T:
@@ -242,7 +242,7 @@ def run_steps(
     second_order, x0_prev = any(steps.prev_coef), None
     order = range(total)
     if progress is True:
-        from walkdiff.progress import progress as bar
+        from walkdiff.common.progress import progress as bar
 
         order = bar(order, desc="sampling", unit="step")
     for k in order:

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 SCHEDULES = ("linear", "cosine", "quad")
 

@@ -17,7 +17,7 @@ from torchmetrics import Metric
 from torchmetrics.image.fid import FrechetInceptionDistance, _compute_fid
 from torchmetrics.utilities import dim_zero_cat
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 
 def frechet_distance(

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 from torchmetrics import Metric
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 
 def _check_positions(name: str, positions: Tensor, min_frames: int) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import lightning as L
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, Normalizer
 from walkdiff.motion.skeleton import Motion, Skeleton
@@ -62,7 +62,7 @@ class MotionModule(L.LightningModule):
         """
         import torch
 
-        from walkdiff.checkpoints import expect_class
+        from walkdiff.common.checkpoints import expect_class
 
         if str(device).startswith("cuda") and not torch.cuda.is_available():
             raise WalkdiffError(f"--device {device}: this torch build sees no CUDA GPU; use --device cpu")

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from torch import nn
 from torchmetrics.classification import MulticlassAccuracy
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.models.base import MotionModule
 from walkdiff.motion.body_features import BodyFrame
 from walkdiff.motion.representation import Normalizer, features_to_positions

@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.errors import WalkdiffError
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
@@ -72,7 +72,7 @@ def path_control(
     the path they are (B,): their closest path point within `reach` of `progress`, a frame ago's.
 
     The path is read no farther than progress + reach + pace[:, -1] (arc length): a path still growing
-    gives the same controls as the whole path once it is longer than that (`walkdiff.streaming`).
+    gives the same controls as the whole path once it is longer than that (streaming).
     """
     progress, _ = path.project(position, near=progress, reach=reach)
     targets = torch.from_numpy(path.at(progress[:, None] + pace)).float()

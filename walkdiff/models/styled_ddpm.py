@@ -44,6 +44,7 @@ import torch
 import torch.nn.functional as F
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import (
     DEFAULT_STEPS,
     GaussianDiffusion,
@@ -59,11 +60,10 @@ from walkdiff.diffusion import (
     step_coefficients,
     step_jumps,
 )
-from walkdiff.errors import WalkdiffError
-from walkdiff.footfix import ground, planted_heights
 from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
+from walkdiff.motion.footfix import ground, planted_heights
 from walkdiff.motion.representation import decode_root, features_to_positions
 from walkdiff.spec import DataSpec
 

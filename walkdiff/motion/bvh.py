@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_atomic
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_atomic
 from walkdiff.motion.rotations import euler_to_matrix, matrix_to_euler
 from walkdiff.motion.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import savgol_filter
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 
 def savgol(x: np.ndarray, window: int = 31, order: int = 4, axis: int = 0) -> np.ndarray:

@@ -15,7 +15,7 @@ import pygltflib as gl
 import roma
 import torch
 
-from walkdiff.files import write_atomic
+from walkdiff.common.files import write_atomic
 from walkdiff.motion.skeleton import Motion
 
 BONE_WIDTH = 0.03  # metres: the stick figure's bones are square rods this wide

@@ -41,7 +41,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.skeleton import Motion, Skeleton
 

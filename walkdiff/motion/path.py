@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_json
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_json
 
 
 @dataclass

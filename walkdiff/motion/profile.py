@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.mirror import find_mirror_pairs
 from walkdiff.motion.skeleton import Motion, Skeleton, skeleton_from_dict, skeleton_to_dict

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import torch
 
-from walkdiff.files import output_folder, write_json, write_text
-from walkdiff.progress import progress
-from walkdiff.score import (
+from walkdiff.common.files import output_folder, write_json, write_text
+from walkdiff.common.progress import progress
+from walkdiff.evaluation.score import (
     METRICS,
     Clip,
     ClipScorer,
@@ -44,7 +44,7 @@ def _clips_of_raw(scorer: ClipScorer, raw: torch.Tensor, styles: list[str], cont
 
 
 def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, bootstrap: int, **sampling):
-    from walkdiff.evaluation import generate_windows
+    from walkdiff.evaluation.evaluate import generate_windows
 
     contents = list(model.spec["contents"])
     content_ids = [contents.index(n) for n in scorer.data.selection.names]
@@ -61,7 +61,7 @@ def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, 
 def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.Tensor], strength: float,
                keep: bool, seed: int) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
     """Every source restyled to every other style: (outputs, their sources, target styles)."""
-    from walkdiff.generation import Sampling, restyle
+    from walkdiff.styled.generation import Sampling, restyle
 
     styles = list(model.spec["styles"])
     contents = list(model.spec["contents"])
@@ -92,7 +92,7 @@ def bench_protocol(
     seed: int = 0,
     batch_size: int = 64,
 ) -> dict:
-    from walkdiff.generation import load_generator
+    from walkdiff.styled.generation import load_generator
 
     started = time.perf_counter()
     out = output_folder(out)

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 # Without these, Chromium on a machine with no network waits on connections it will never make.
 QUIET_FLAGS = (

@@ -41,6 +41,9 @@ from pathlib import Path
 
 import torch
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_atomic
+from walkdiff.common.progress import progress
 from walkdiff.diffusion import (
     GaussianDiffusion,
     SamplerSteps,
@@ -51,9 +54,6 @@ from walkdiff.diffusion import (
     step_coefficients,
 )
 from walkdiff.diffusion.samplers import ModelFn
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_atomic
-from walkdiff.progress import progress
 
 
 def _first_steps(steps: SamplerSteps, n: int) -> SamplerSteps:
@@ -177,8 +177,8 @@ def distill(
     `distilled` record). `lambda_accel`: the weight of the acceleration term (distill_loss). Returns the
     run's record."""
     from walkdiff.data.datamodule import MotionDataModule
-    from walkdiff.evaluation import data_settings
-    from walkdiff.generation import load_generator
+    from walkdiff.evaluation.evaluate import data_settings
+    from walkdiff.styled.generation import load_generator
 
     out_path = Path(out)
     if out_path.exists() and not overwrite:

@@ -26,15 +26,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.evaluation import MotionScorer, WindowSet, data_settings, load_evaluator, window_set
-from walkdiff.files import output_folder, read_utf8, write_json, write_text
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import output_folder, read_utf8, write_json, write_text
+from walkdiff.common.progress import progress
+from walkdiff.evaluation.evaluate import MotionScorer, WindowSet, data_settings, load_evaluator, window_set
 from walkdiff.metrics import Diversity
 from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.metrics.physics import jerk_sums, skating_sums
 from walkdiff.motion.body_features import resample_positions
 from walkdiff.motion.bvh import read_bvh
-from walkdiff.progress import progress
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ class ClipScorer:
     """An evaluator with its real reference windows: turns lists of clips into bootstrapped metrics."""
 
     def __init__(self, evaluator_path, root=None, cache_dir=None, contents=None, stride=None, batch_size=512):
-        from walkdiff.checkpoints import read_checkpoint
+        from walkdiff.common.checkpoints import read_checkpoint
         from walkdiff.data.datamodule import MotionDataModule
         from walkdiff.data.datasets import protocol_contents
 

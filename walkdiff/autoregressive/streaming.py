@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.speech import LogMelStream
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.errors import WalkdiffError
 from walkdiff.models.path_walker import advance_root, path_control, path_start
 from walkdiff.motion.path import Polyline
 
@@ -248,7 +248,7 @@ class WalkStream(Stream):
     @property
     def frames(self) -> int:
         """Frames to walk the path known so far (all of it once closed)."""
-        from walkdiff.walk import frames_for
+        from walkdiff.autoregressive.walk import frames_for
 
         return frames_for(self.path, self.speed, self.model.spec["fps"])
 

@@ -17,9 +17,9 @@ from unittest import mock
 import numpy as np
 import torch
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import strict_json, write_atomic, write_json
-from walkdiff.progress import progress
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import strict_json, write_atomic, write_json
+from walkdiff.common.progress import progress
 
 
 def machine() -> dict:
@@ -403,7 +403,7 @@ def bench_time_to_bar(
     batch loops alone), the measurement's own time, each metric against its bar, and the first epoch
     where all three hold.
     """
-    from walkdiff.cli import lightning_cli
+    from walkdiff.cli.main import lightning_cli
 
     bench = _TimeToBar(out, config, evaluator, repeats, list(fit_args))
     # LightningCLI warns when it is given args and sys.argv holds more (this bench's own options).
@@ -442,7 +442,7 @@ def bench_distill(
     all), scored on the teacher's real test windows. `bench sample` on the student adds its speed, seams
     and transfer.
     """
-    from walkdiff.generation import load_generator
+    from walkdiff.styled.generation import load_generator
 
     teacher_model, student_model = load_generator(teacher), load_generator(student)
     record = torch.load(student, map_location="cpu", weights_only=False, mmap=True).get("distilled")
@@ -510,7 +510,13 @@ def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
     `generation.seams_within_spread` (at most 10% of seam steps beyond either end of the inside 5-95%
     band), the criterion the tests hold generation to.
     """
-    from walkdiff.generation import joint_speeds, seam_steps, seam_tails, seams_within_spread, split_seams
+    from walkdiff.styled.generation import (
+        joint_speeds,
+        seam_steps,
+        seam_tails,
+        seams_within_spread,
+        split_seams,
+    )
 
     speed = joint_speeds(model, x)
     seams = seam_steps(x.shape[1], model.spec["window"], overlap, blend)
@@ -532,9 +538,9 @@ def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
 
 def _transfer_windows(model, dm, strength: float, keep_trajectory: bool, seed: int, ground: bool = True):
     """Every test clip restyled to every other style, cut into windows; plus the root path errors."""
-    from walkdiff.evaluation import WindowSet
-    from walkdiff.generation import Sampling, restyle
+    from walkdiff.evaluation.evaluate import WindowSet
     from walkdiff.motion.representation import decode_root
+    from walkdiff.styled.generation import Sampling, restyle
 
     window, styles = model.spec["window"], len(model.spec["styles"])
     walk = list(model.spec["contents"]).index("walk")
@@ -602,7 +608,7 @@ class _QualityBench:
 
     def __init__(self, model, ckpt: str, evaluator: str, num: int, seed: int, seeds: int, ground: bool):
         from walkdiff.data.datamodule import MotionDataModule
-        from walkdiff.evaluation import MotionScorer, data_settings, load_evaluator, window_set
+        from walkdiff.evaluation.evaluate import MotionScorer, data_settings, load_evaluator, window_set
 
         checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)
         self.datamodule = MotionDataModule(**data_settings(checkpoint))
@@ -619,7 +625,7 @@ class _QualityBench:
 
     def row(self, model, sampler: str, steps: int, eta: float):
         """(the setting's mean scores over the seeds, the first seed's windows and their scores)."""
-        from walkdiff.evaluation import generate_windows
+        from walkdiff.evaluation.evaluate import generate_windows
 
         runs, elapsed, first = [], 0.0, None
         for s in range(self.seed, self.seed + self.seeds):
@@ -640,7 +646,7 @@ class _QualityBench:
 
 def _fix_feet(model, windows):
     """The windows with `--fix-feet` applied to their raw features."""
-    from walkdiff.footfix import fix_feet_features
+    from walkdiff.motion.footfix import fix_feet_features
 
     raw = fix_feet_features(windows.raw.numpy(), model.profile, model.spec["fps"])
     return replace(windows, raw=torch.from_numpy(raw))
@@ -676,7 +682,7 @@ def bench_sample(
     counts (`walkdiff distill`) join the DDIM rows, the speed (frames/s at each) and the seams.
     """
     from walkdiff.diffusion import respace
-    from walkdiff.generation import Sampling, generate_long, load_generator, resolve_windows
+    from walkdiff.styled.generation import Sampling, generate_long, load_generator, resolve_windows
 
     model = load_generator(ckpt)
     bench = _QualityBench(model, ckpt, evaluator, num, seed, seeds, ground)
@@ -839,7 +845,7 @@ def _gesture_model(ckpt: str | None):
     from walkdiff.models.diffmotion import DiffMotion
 
     if ckpt is not None:
-        from walkdiff.gesture import load_model
+        from walkdiff.autoregressive.gesture import load_model
 
         return load_model(ckpt).eval()
     spec = dict(
@@ -941,7 +947,7 @@ def _stream_walker(ckpt: str | None, speed: float):
     from walkdiff.models.path_walker import PathWalker
 
     if ckpt is not None:
-        from walkdiff.walk import load_walker
+        from walkdiff.autoregressive.walk import load_walker
 
         return load_walker(ckpt)
     spec = dict(
@@ -1052,7 +1058,7 @@ def bench_stream(
 
 def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, sampler) -> dict:
     torch.set_num_threads(1)
-    from walkdiff.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
+    from walkdiff.autoregressive.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
 
     model = _gesture_model(ckpt).eval()  # the checkpoint, or ZEGGS-sized untrained
     rate = model.spec.get("sample_rate") or rate
@@ -1191,7 +1197,7 @@ def _frame_counts(text: str, option: str) -> tuple[int, ...]:
 
 def run(args) -> None:
     if args.what == "protocol":
-        from walkdiff.protocol import bench_protocol
+        from walkdiff.evaluation.protocol import bench_protocol
 
         bench_protocol(
             args.out, args.ckpt, args.evaluator, args.student, _strengths(args.strengths), args.samples,
@@ -1247,7 +1253,7 @@ def run(args) -> None:
     elif args.what == "view":
         bench_view(args.out, args.files, args.repeats)
     elif args.what == "walk":
-        from walkdiff.walk import bench_walk
+        from walkdiff.autoregressive.walk import bench_walk
 
         print(json.dumps(strict_json(bench_walk(args.out, args.ckpt, args.evaluator, args.seed)), indent=2))
 
@@ -1266,7 +1272,7 @@ def write_peak():
     status = Path("/proc/self/status").read_text().splitlines()
     report.write_text(next(line.split()[1] for line in status if line.startswith("VmHWM:")))
 atexit.register(write_peak)
-from walkdiff.cli import main
+from walkdiff.cli.main import main
 sys.argv[0] = "walkdiff"
 sys.exit(main(sys.argv[1:]))
 """
@@ -1302,7 +1308,7 @@ def bench_memory(
     seconds: tuple[int, ...] = (10, 120),
 ) -> dict:
     """Peak memory of `walkdiff sample --frames N --num 1` (GIF included) for each N, each in its own
-    process, beside the estimate `walkdiff.memory` refuses frame counts by; with `walker`, of `walkdiff
+    process, beside the estimate `walkdiff.common.memory` refuses frame counts by; with `walker`, of `walkdiff
     walk` along straight paths of each of `seconds`; with `gesture` and `audio`, of `walkdiff gesture`
     on the WAV repeated to each of `seconds`.
 
@@ -1310,8 +1316,8 @@ def bench_memory(
     (one window is denoised at a time), and 100,000 frames of DDPM would take hours.
     """
 
-    from walkdiff.generation import load_generator
-    from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames, memory_limit
+    from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames, memory_limit
+    from walkdiff.styled.generation import load_generator
 
     style = load_generator(ckpt).spec["styles"][0]
     env = os.environ | {"WALKDIFF_PROGRESS": "0"}
@@ -1358,8 +1364,8 @@ def bench_memory(
 
 def _walk_memory(ckpt: str, seconds: int, tmp: Path, env: dict) -> dict:
     """Peak memory of `walkdiff walk` along a straight path walked in `seconds` at 1.2 m/s."""
-    from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
-    from walkdiff.walk import load_walker
+    from walkdiff.autoregressive.walk import load_walker
+    from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 
     model = load_walker(ckpt)
     path = tmp / f"straight_{seconds}s.json"
@@ -1391,9 +1397,9 @@ def _gesture_memory(ckpt: str, audio: str, seconds: int, tmp: Path, env: dict) -
     """Peak memory of `walkdiff gesture` on `audio` repeated (or cut) to `seconds`."""
     import soundfile
 
+    from walkdiff.autoregressive.gesture import load_model
+    from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
     from walkdiff.data.speech import read_wav
-    from walkdiff.gesture import load_model
-    from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
 
     samples, rate = read_wav(audio)
     long = np.resize(samples, seconds * rate)  # repeated end to end
@@ -1415,7 +1421,7 @@ def _gesture_memory(ckpt: str, audio: str, seconds: int, tmp: Path, env: dict) -
 
 
 def _default_view_files() -> list[str]:
-    from walkdiff.paths import dataset_dir
+    from walkdiff.common.paths import dataset_dir
 
     files = sorted(dataset_dir("xia").glob("*.bvh"))[:2]
     if len(files) < 2:
@@ -1432,7 +1438,7 @@ def _serving_view(files: list[str]):
 
     started = time.perf_counter()
     server = subprocess.Popen(
-        [sys.executable, "-m", "walkdiff.cli", "view", *files, "--port", "0"],
+        [sys.executable, "-m", "walkdiff.cli.main", "view", *files, "--port", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env=os.environ | {"WALKDIFF_PROGRESS": "0"},
     )  # fmt: skip
@@ -1461,7 +1467,7 @@ def _serving_view(files: list[str]):
 
 def _drawn(page) -> tuple[int, int] | None:
     """The left and right limb pixels of a screenshot of the page, once the skeletons are drawn."""
-    from walkdiff.view import limb_pixels, skeletons_shown
+    from walkdiff.preview.view import limb_pixels, skeletons_shown
 
     pixels = limb_pixels(page.screenshot())
     return pixels if skeletons_shown(*pixels) else None
@@ -1471,8 +1477,8 @@ def bench_view(out: str, files: list[str] | None = None, repeats: int = 5, timeo
     """Seconds from launching headless Chromium at a `walkdiff view` page until the skeletons are drawn
     (both sides' limb colours in a screenshot, as tests/test_view.py counts them), each repeat in a fresh
     browser with an empty cache, with the steps on the way; and how long `walkdiff view` took to serve."""
-    from walkdiff.browser import Browser, chromium_version
-    from walkdiff.view import WINDOW
+    from walkdiff.preview.browser import Browser, chromium_version
+    from walkdiff.preview.view import WINDOW
 
     files = list(files) if files else _default_view_files()
     for file in files:

@@ -15,8 +15,8 @@ from typing import IO
 import numpy as np
 from PIL import Image
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_atomic
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_atomic
 
 AUDIO_BLOCK = 1024  # samples per AAC frame
 

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_text
+from walkdiff.common.progress import progress
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.folder import NO_CONTENT, NO_STYLE, SPLITS, FolderSource
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_text
 from walkdiff.motion.profile import SkeletonProfile
-from walkdiff.progress import progress
 
 TRAINING_FPS = 30  # the suggested rate for data at 30 fps or more
 WINDOW_SECONDS = 0.8  # the suggested window, at most the 10th percentile clip length

@@ -33,19 +33,19 @@ import numpy as np
 import torch
 from scipy.signal import argrelmin
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import check_free, output_folder, write_json
+from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
+from walkdiff.common.progress import progress, step_hook
+from walkdiff.common.tracking import log_file
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import check_free, output_folder, write_json
-from walkdiff.memory import GESTURE_BYTES_PER_FRAME, check_frames
 from walkdiff.metrics import Jitter
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.skeleton import Motion
-from walkdiff.progress import progress, step_hook
-from walkdiff.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
-from walkdiff.tracking import log_file
+from walkdiff.preview.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
 
 SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
 BEAT_SIGMA = 0.1  # seconds
@@ -201,7 +201,7 @@ def gesture_stream(
 ) -> dict:
     """`walkdiff gesture --stream`: poses as the audio arrives (raw s16le PCM on stdin, or a WAV that is
     still being written), one JSON line per frame on stdout, the BVH(s) written at the end."""
-    from walkdiff.streaming import (
+    from walkdiff.autoregressive.streaming import (
         GestureBatch,
         GestureStream,
         PcmDecoder,

@@ -9,7 +9,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 DEFAULT_TRACKING_URI = "sqlite:///mlruns/mlflow.db"
 DEFAULT_ARTIFACT_ROOT = "mlruns/artifacts"
@@ -92,7 +92,7 @@ def close_dead_runs(client, experiment_id: str) -> list[str]:
     into the same experiment does. Runs of other hosts, or without the PID tag, are left alone: whether
     their process lives cannot be told from here. Returns the closed run ids.
     """
-    from walkdiff.files import process_alive
+    from walkdiff.common.files import process_alive
 
     host = socket.gethostname()
     closed = []

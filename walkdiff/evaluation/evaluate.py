@@ -28,11 +28,12 @@ import numpy as np
 import torch
 from torchmetrics.classification import MulticlassAccuracy
 
-from walkdiff.checkpoints import expect_class, read_checkpoint
+from walkdiff.common.checkpoints import expect_class, read_checkpoint
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_json, write_text
+from walkdiff.common.progress import progress, step_hook
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.datasets import protocol_contents
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_json, write_text
 from walkdiff.metrics import (
     Diversity,
     FootSkating,
@@ -45,7 +46,6 @@ from walkdiff.metrics import (
 )
 from walkdiff.motion.representation import features_to_positions
 from walkdiff.motion.skeleton import Skeleton
-from walkdiff.progress import progress, step_hook
 
 log = logging.getLogger(__name__)
 
@@ -473,7 +473,7 @@ def log_to_mlflow(report: dict, out: Path, experiment: str) -> None:
     import mlflow
     from mlflow.entities import Metric, Param
 
-    from walkdiff.tracking import DEFAULT_ARTIFACT_ROOT, check_tracking_uri, tracking_uri
+    from walkdiff.common.tracking import DEFAULT_ARTIFACT_ROOT, check_tracking_uri, tracking_uri
 
     uri = tracking_uri()
     check_tracking_uri(uri)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import read_config
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import read_config
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.kinematics import motion_world_positions

@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 # diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
@@ -38,13 +38,13 @@ def lightning_cli(args: list[str] | None, callbacks: list | None = None):
     """
     from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
 
-    from walkdiff.tracking import absolute_uri, check_tracking_uri
+    from walkdiff.common.tracking import absolute_uri, check_tracking_uri
 
     class LogConfigToMLflow(SaveConfigCallback):
         """MLflow's sqlite URI has no log_dir: the resolved config goes into the run instead."""
 
         def save_config(self, trainer, pl_module, stage) -> None:
-            from walkdiff.tracking import log_text, run_params
+            from walkdiff.common.tracking import log_text, run_params
 
             text = self.parser.dump(self.config, skip_none=False)
             log_text(trainer.logger, text, "config.yaml")
@@ -97,7 +97,7 @@ def open_run(trainer) -> None:
     """Before `fit`: what walkdiff records about every MLflow run (`walkdiff.callbacks.tracking`).
 
     Lightning closes its run as FAILED on an exception, Ctrl-C or SIGTERM; after SIGKILL nothing can, so
-    the next `fit` into the experiment does (`walkdiff.tracking.close_dead_runs`).
+    the next `fit` into the experiment does (`walkdiff.common.tracking.close_dead_runs`).
     """
     from walkdiff.callbacks.checkpoints import mlflow_logger
     from walkdiff.callbacks.tracking import RunTracking
@@ -644,7 +644,7 @@ def main(argv: list[str] | None = None) -> int:
         output = command_output(args)
         if output is None:
             return run_command(args)
-        from walkdiff.files import check_free, output_lock
+        from walkdiff.common.files import check_free, output_lock
 
         path, guarded = output
         with output_lock(path, " ".join(filter(None, (args.command, getattr(args, "what", None))))):
@@ -738,11 +738,11 @@ def stream_only(options: dict, names: tuple[str, ...]) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     if args.command == "inspect":
-        from walkdiff.tools import inspect_file
+        from walkdiff.motion.conversion import inspect_file
 
         print(inspect_file(args.file, args.profile))
     elif args.command == "convert":
-        from walkdiff.tools import convert_file
+        from walkdiff.motion.conversion import convert_file
 
         print(
             convert_file(
@@ -755,12 +755,12 @@ def run_command(args: argparse.Namespace) -> int:
             )  # fmt: skip
         )
     elif args.command == "view":
-        from walkdiff.view import view
+        from walkdiff.preview.view import view
 
         view(args.files, host=args.host, port=args.port, profile=args.profile)
     elif args.command == "data":
-        from walkdiff.files import read_config
-        from walkdiff.scan import scan
+        from walkdiff.common.files import read_config
+        from walkdiff.data.scan import scan
 
         options = vars(args).copy()
         for key in ("command", "what"):
@@ -769,11 +769,11 @@ def run_command(args: argparse.Namespace) -> int:
             options["profile"] = read_config(options["profile"], "--profile")
         print(scan(**options))
     elif args.command == "evaluate":
-        from walkdiff.checkpoints import checkpoint_class
-        from walkdiff.evaluation import evaluate
+        from walkdiff.common.checkpoints import checkpoint_class
+        from walkdiff.evaluation.evaluate import evaluate
 
         if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
-            from walkdiff.gesture import evaluate_gesture
+            from walkdiff.autoregressive.gesture import evaluate_gesture
 
             evaluate_gesture(
                 args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root,
@@ -790,7 +790,7 @@ def run_command(args: argparse.Namespace) -> int:
         report = evaluate(**options)
         print(f"wrote {args.out}/report.json and report.md in {report['elapsed_s']} s")
     elif args.command in ("sample", "transfer"):
-        from walkdiff import generation
+        from walkdiff.styled import generation
 
         options = vars(args).copy()
         del options["command"]
@@ -799,8 +799,8 @@ def run_command(args: argparse.Namespace) -> int:
         if report["preview"] is not None:
             print(f"preview: {report['preview']['note']}")
     elif args.command in ("gesture", "evaluate-gesture"):
-        from walkdiff import gesture
-        from walkdiff.files import strict_json
+        from walkdiff.autoregressive import gesture
+        from walkdiff.common.files import strict_json
 
         options = vars(args).copy()
         del options["command"]
@@ -814,8 +814,8 @@ def run_command(args: argparse.Namespace) -> int:
             gesture.evaluate_gesture(**options)
             print(f"wrote {args.out}/report.json")
     elif args.command == "walk":
-        from walkdiff.files import strict_json
-        from walkdiff.walk import walk, walk_stream
+        from walkdiff.autoregressive.walk import walk, walk_stream
+        from walkdiff.common.files import strict_json
 
         options = vars(args).copy()
         del options["command"]
@@ -827,20 +827,20 @@ def run_command(args: argparse.Namespace) -> int:
             stream_only(options, ("idle",))
             print(json.dumps(strict_json(walk(**options)), indent=2))
     elif args.command == "score":
-        from walkdiff.score import score
+        from walkdiff.evaluation.score import score
 
         options = vars(args).copy()
         del options["command"]
         report = score(**options)
         print(f"wrote {args.out}/report.json and report.md in {report['elapsed_s']} s")
     elif args.command == "distill":
-        from walkdiff.distill import distill
+        from walkdiff.styled.distill import distill
 
         options = vars(args).copy()
         del options["command"]
         distill(**options)
     elif args.command == "bench":
-        from walkdiff import bench
+        from walkdiff.bench import benchmarks as bench
 
         bench.run(args)
     return 0

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 # Model classes by what commands call them.
 KINDS = {

@@ -83,7 +83,7 @@ def link_atomic(link: str | Path, target: str | Path) -> Path:
     Readers of `link` see the old target or the new one, never a missing file. The temporary link is
     named like every temporary here, so a writer killed between the two steps leaves nothing for good.
     """
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     link = Path(link)
     if link.is_dir() and not link.is_symlink():
@@ -108,7 +108,7 @@ def output_lock(path: str | Path, command: str) -> Iterator[Path]:
     system releases when its holder exits or is killed, so a crash never leaves an output locked; its
     file is removed on release. Once the lock is held, temporary files of writers that died are removed.
     """
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     path = Path(path).resolve()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -149,7 +149,7 @@ def output_lock(path: str | Path, command: str) -> Iterator[Path]:
 
 def check_free(paths: list[Path], overwrite: bool) -> None:
     """Refuse to replace existing outputs unless `overwrite`: a WalkdiffError listing them."""
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     taken = [str(p) for p in paths if Path(p).exists()]
     if taken and not overwrite:
@@ -159,7 +159,7 @@ def check_free(paths: list[Path], overwrite: bool) -> None:
 
 def output_folder(path: str | Path, option: str = "--out") -> Path:
     """`path` as an output folder, or a WalkdiffError when a file of that name is in the way."""
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     path = Path(path)
     if path.exists() and not path.is_dir():
@@ -193,7 +193,7 @@ def write_json(path: str | Path, data) -> Path:
 
 def read_utf8(path: Path, what: str) -> str:
     """A text file's contents (a UTF-8 byte-order mark dropped), or a WalkdiffError naming `what`."""
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     try:
         return Path(path).read_bytes().decode("utf-8-sig")
@@ -207,7 +207,7 @@ def read_config(path: str | Path, what: str) -> dict:
     """A YAML or JSON mapping from a file, or a WalkdiffError naming the file and what was expected."""
     from omegaconf import OmegaConf
 
-    from walkdiff.errors import WalkdiffError
+    from walkdiff.common.errors import WalkdiffError
 
     path = Path(path)
     if not path.is_file():

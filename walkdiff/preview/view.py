@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.conversion import file_profile
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.render import _sides
-from walkdiff.tools import file_profile
+from walkdiff.preview.render import _sides
 
 CENTRE = (60, 60, 60)
 ROW_SPACING = 1.2  # metres between the clips' rows

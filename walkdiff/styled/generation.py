@@ -22,18 +22,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import check_free, output_folder, write_json
+from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
+from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice, log_snr_timesteps, respace, run_steps, step_coefficients
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import check_free, output_folder, write_json
-from walkdiff.footfix import fix_feet
-from walkdiff.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.motion.footfix import fix_feet
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions, start_pose
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
-from walkdiff.progress import progress, step_hook
-from walkdiff.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
+from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]

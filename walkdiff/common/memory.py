@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import os
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 LIMIT_ENV = "WALKDIFF_MEMORY_LIMIT_GB"
 DEFAULT_LIMIT_GB = 4.0

@@ -14,17 +14,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import check_free, output_folder, write_atomic, write_json
+from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
+from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import check_free, output_folder, write_atomic, write_json
-from walkdiff.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import decode
 from walkdiff.motion.skeleton import Motion
-from walkdiff.progress import progress, step_hook
-from walkdiff.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
+from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 
 def load_walker(path: str | Path, device: str | torch.device = "cpu"):
@@ -90,7 +90,7 @@ def plot_paths(out: str | Path, panels: list[tuple[str, Polyline, list[tuple[str
     """Top-down plot per path, in metres: the requested path (start and end marked, arrows along it) and
     each walk's root trajectory.
 
-    Drawn in walkdiff's one axis convention (`walkdiff.render`): seen from above, x to the right and z
+    Drawn in walkdiff's one axis convention (`walkdiff.preview.render`): seen from above, x to the right and z
     towards the viewer, that is down the page, as the GIF's camera sees the ground.
     """
     import matplotlib
@@ -253,8 +253,8 @@ def walk_stream(
     the end."""
     import sys
 
-    from walkdiff.gesture import emit
-    from walkdiff.streaming import WalkStream, read_growing, read_pipe
+    from walkdiff.autoregressive.gesture import emit
+    from walkdiff.autoregressive.streaming import WalkStream, read_growing, read_pipe
 
     model = load_walker(ckpt)
     styles = list(model.spec["styles"])
@@ -349,7 +349,7 @@ def style_accuracy(scorer, raws: list[np.ndarray], styles: list[int], window: in
 
 def bench_walk(out: str, ckpt: str, evaluator: str, seed: int = 0) -> dict:
     """Every style along every test path: path-following error, style accuracy, a plot of the paths."""
-    from walkdiff.evaluation import load_evaluator
+    from walkdiff.evaluation.evaluate import load_evaluator
 
     model = load_walker(ckpt)
     scorer = load_evaluator(evaluator)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from walkdiff.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError
 
 GET_DATA_HINT = (
     "Set WALKDIFF_DATA to the folder that holds xia/ (and zeggs/, humanact12/), "

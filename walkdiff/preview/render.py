@@ -29,8 +29,8 @@ from typing import IO
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from walkdiff.errors import WalkdiffError
-from walkdiff.files import write_atomic
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import write_atomic
 from walkdiff.motion.mirror import name_pairs
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
@@ -212,7 +212,7 @@ def render_gif(
         frames[0].save(f, format="GIF", save_all=True, append_images=frames[1:], duration=delays, loop=0)
 
     if video:
-        from walkdiff.video import write_mp4
+        from walkdiff.preview.video import write_mp4
 
         if audio is not None:
             samples, rate = audio

@@ -1,0 +1,1 @@
+"""The autoregressive DiffMotion family at work: speech-driven gestures, path walking and streaming."""

@@ -1,0 +1,1 @@
+"""The `walkdiff` command line: one module per command family, `main` only dispatches."""

@@ -1,0 +1,3 @@
+from walkdiff.cli.main import main
+
+raise SystemExit(main())
