@@ -345,7 +345,7 @@ def test_config_trains_through_the_cli(trained, tmp_path, monkeypatch):
 
 
 def test_sample_callback_writes_held_out_audio_clips(trained, tmp_path):
-    from walkdiff.autoregressive.gesture import GestureSamples
+    from walkdiff.callbacks.samples import GestureSamples
 
     model = load_model(trained[0])
     dm = SpeechDataModule(str(trained[1]), window=40, past=5, lookahead=8)

@@ -15,7 +15,7 @@ from test_speech import RATE, write_take
 
 from walkdiff.autoregressive.gesture import load_model, synthesize
 from walkdiff.autoregressive.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
-from walkdiff.autoregressive.walk import frames_for, load_walker
+from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
@@ -23,7 +23,7 @@ from walkdiff.data.speech import LogMelStream, SpeechDataModule, log_mel, read_w
 from walkdiff.models.diffmotion import DiffMotion
 from walkdiff.models.path_walker import PathWalker
 from walkdiff.motion.bvh import read_bvh
-from walkdiff.motion.path import Polyline
+from walkdiff.motion.path import Polyline, frames_for
 
 SPEECH = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=4)
 WALKER = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_layers=2, timesteps=8)

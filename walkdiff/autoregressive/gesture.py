@@ -21,14 +21,11 @@ from __future__ import annotations
 
 import inspect
 import itertools
-import json
 import math
 import sys
-import tempfile
 import time
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import torch
 from scipy.signal import argrelmin
@@ -37,7 +34,6 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder, write_json
 from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
-from walkdiff.common.tracking import log_file
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.metrics import Jitter
@@ -179,11 +175,6 @@ def file_quaternions(model, poses: np.ndarray, joints: list[str]) -> np.ndarray:
     return roma.rotmat_to_unitquat(torch.from_numpy(motion.rotations[:, index])).numpy()
 
 
-def emit(line: dict) -> None:
-    """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made."""
-    print(json.dumps(line, separators=(",", ":")), flush=True)
-
-
 def gesture_stream(
     ckpt: str,
     audio: str,
@@ -206,6 +197,7 @@ def gesture_stream(
         GestureStream,
         PcmDecoder,
         WavDecoder,
+        emit,
         read_growing,
         read_pipe,
     )
@@ -491,38 +483,3 @@ def beat_gain(beats: list[dict]) -> dict:
 
 
 # ---------------------------------------------------------------- training callback
-
-
-class GestureSamples(L.Callback):
-    """Every N epochs: a sample of the first take's held-out audio as BVH + GIF into the MLflow run.
-
-    Logged as `samples/epoch_NNNN/<take>.bvh` and `.gif`, always from the same seed, so successive
-    epochs can be compared.
-    """
-
-    def __init__(self, every_n_epochs: int = 10, seconds: float = 10.0, seed: int = 0):
-        self.every_n_epochs, self.seconds, self.seed = every_n_epochs, seconds, seed
-
-    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
-        from walkdiff.callbacks.samples import preview_epoch
-
-        epoch = preview_epoch(trainer, self.every_n_epochs)
-        if epoch is None:
-            return
-        self.write(pl_module, trainer.datamodule, trainer.logger, f"samples/epoch_{epoch:04d}")
-
-    def write(
-        self, pl_module, datamodule, logger, artifact_dir: str, folder: Path | None = None
-    ) -> list[Path]:
-        take = datamodule.load_takes()[0]
-        begin, end = datamodule.split_frames(take, "test")
-        end = min(end, begin + round(self.seconds * pl_module.spec["fps"]))
-        was_training = pl_module.training
-        pl_module.eval()
-        clip = synthesize(pl_module, take.audio[begin:end], 1, self.seed, smooth=True)[0]
-        pl_module.train(was_training)
-        with tempfile.TemporaryDirectory() as tmp:
-            files, _ = write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
-            for path in files:
-                log_file(logger, path, artifact_dir)
-            return files if folder else []

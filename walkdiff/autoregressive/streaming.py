@@ -23,6 +23,7 @@ different points of their input are valid samples whose noise depends on which f
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 import time
@@ -36,7 +37,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.speech import LogMelStream
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root, path_control, path_start
-from walkdiff.motion.path import Polyline
+from walkdiff.motion.path import Polyline, frames_for
 
 
 class StreamBatch:
@@ -248,8 +249,6 @@ class WalkStream(Stream):
     @property
     def frames(self) -> int:
         """Frames to walk the path known so far (all of it once closed)."""
-        from walkdiff.autoregressive.walk import frames_for
-
         return frames_for(self.path, self.speed, self.model.spec["fps"])
 
     def ready(self) -> bool:
@@ -399,3 +398,8 @@ class WavDecoder:
                 f"resample it (e.g. ffmpeg -ar {self.expected_rate})"
             )
         self.rate, self.channels, self.width, self.floating = rate, channels, bits // 8, tag == 3
+
+
+def emit(line: dict) -> None:
+    """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made."""
+    print(json.dumps(line, separators=(",", ":")), flush=True)

@@ -21,7 +21,7 @@ from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.path import Polyline, read_path
+from walkdiff.motion.path import Polyline, frames_for, read_path
 from walkdiff.motion.representation import decode
 from walkdiff.motion.skeleton import Motion
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
@@ -31,13 +31,6 @@ def load_walker(path: str | Path, device: str | torch.device = "cpu"):
     from walkdiff.models.path_walker import PathWalker
 
     return PathWalker.from_trained(path, "path-walker", device)
-
-
-def frames_for(path: Polyline, speed: float, fps: float) -> int:
-    """Frames to walk the whole path at `speed`."""
-    # A hair of tolerance: speeds are float32 tensors and paths converted from metres, so a walk of a
-    # whole number of frames may come out a millionth of a frame longer.
-    return max(2, math.ceil(path.length / speed * fps - 1e-4) + 1)
 
 
 def walk_paths(
@@ -253,8 +246,7 @@ def walk_stream(
     the end."""
     import sys
 
-    from walkdiff.autoregressive.gesture import emit
-    from walkdiff.autoregressive.streaming import WalkStream, read_growing, read_pipe
+    from walkdiff.autoregressive.streaming import WalkStream, emit, read_growing, read_pipe
 
     model = load_walker(ckpt)
     styles = list(model.spec["styles"])
@@ -320,75 +312,3 @@ def _quaternions(rotations: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- benchmark
-
-
-def benchmark_paths(scale: float) -> dict[str, Polyline]:
-    """Paths of every kind of turn, sized by `scale` (a walking speed times one second)."""
-    u = np.linspace(0, 1, 200)
-    return {
-        "straight": Polyline.of(np.stack([np.zeros(2), [0.0, 8 * scale]])),
-        "circle": Polyline.of(
-            2 * scale * np.stack([1 - np.cos(2 * np.pi * u), np.sin(2 * np.pi * u)], axis=-1)
-        ),
-        "s_curve": Polyline.of(np.stack([1.5 * scale * np.sin(2 * np.pi * u), 9 * scale * u], axis=-1)),
-        "square": Polyline.of(3 * scale * np.array([[0, 0], [0, 1], [1, 1], [1, 0], [0, 0]], dtype=float)),
-    }
-
-
-def style_accuracy(scorer, raws: list[np.ndarray], styles: list[int], window: int) -> float:
-    """The evaluator's style recognition over non-overlapping windows of each walk."""
-    windows, labels = [], []
-    for raw, style in zip(raws, styles, strict=True):
-        for begin in range(0, raw.shape[0] - window + 1, window):
-            windows.append(raw[begin : begin + window])
-            labels.append(style)
-    positions = scorer.raw_positions(torch.from_numpy(np.stack(windows)).double()).float()
-    logits = scorer.classify(positions)[0]
-    return float((logits.argmax(-1).cpu() == torch.tensor(labels)).double().mean())
-
-
-def bench_walk(out: str, ckpt: str, evaluator: str, seed: int = 0) -> dict:
-    """Every style along every test path: path-following error, style accuracy, a plot of the paths."""
-    from walkdiff.evaluation.evaluate import load_evaluator
-
-    model = load_walker(ckpt)
-    scorer = load_evaluator(evaluator)
-    styles = list(range(len(model.spec["styles"])))
-    scale = float(model.style_speed.mean())
-    unit = model.profile.metres_per_unit  # the plot is in metres
-    rows, panels = {}, []
-    for name, polyline in benchmark_paths(scale).items():
-        started = time.perf_counter()
-        raw, start, speeds = walk_paths(model, polyline, styles, None, seed)
-        elapsed = time.perf_counter() - started
-        walks, errors, scored = [], [], []
-        for style, features, speed in zip(styles, raw, speeds, strict=True):
-            # Each style walks at its own pace: its walk is scored until it is due at the path's end.
-            frames = frames_for(polyline, float(speed), model.spec["fps"])
-            scored.append(features[:frames])
-            root_xz = to_motion(model, features[:frames], start).root_positions[:, [0, 2]]
-            errors.append(path_error(polyline, root_xz))
-            walks.append((model.spec["styles"][style], root_xz * unit))
-        rows[name] = {
-            "length": polyline.length,
-            "frames": raw.shape[1],
-            "error_percent": float(np.mean([e["error_percent"] for e in errors])),
-            "worst_error_percent": float(np.max([e["error_percent"] for e in errors])),
-            "max_distance": float(np.max([e["max_distance"] for e in errors])),
-            "path_covered_percent": float(np.mean([e["path_covered_percent"] for e in errors])),
-            "style_accuracy": style_accuracy(scorer, scored, styles, scorer.spec["window"]),
-            "seconds_per_frame_8_streams": elapsed / raw.shape[1],
-        }
-        panels.append((name, Polyline.of(polyline.points * unit), walks))
-    plot = plot_paths(Path(out).with_suffix(".png"), panels)
-    result = {
-        "checkpoint": ckpt,
-        "evaluator": evaluator,
-        "seed": seed,
-        "paths": rows,
-        "error_percent": float(np.mean([r["error_percent"] for r in rows.values()])),
-        "style_accuracy": float(np.mean([r["style_accuracy"] for r in rows.values()])),
-        "plot": str(plot),
-    }
-    write_json(out, result)
-    return result

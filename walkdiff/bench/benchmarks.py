@@ -403,7 +403,7 @@ def bench_time_to_bar(
     batch loops alone), the measurement's own time, each metric against its bar, and the first epoch
     where all three hold.
     """
-    from walkdiff.cli.main import lightning_cli
+    from walkdiff.callbacks.fit import lightning_cli
 
     bench = _TimeToBar(out, config, evaluator, repeats, list(fit_args))
     # LightningCLI warns when it is given args and sys.argv holds more (this bench's own options).
@@ -607,8 +607,8 @@ class _QualityBench:
     keys = ("fmd", "style_acc", "content_acc", "diversity", "skate_ratio", "slide_speed", "jitter")
 
     def __init__(self, model, ckpt: str, evaluator: str, num: int, seed: int, seeds: int, ground: bool):
-        from walkdiff.data.datamodule import MotionDataModule
-        from walkdiff.evaluation.evaluate import MotionScorer, data_settings, load_evaluator, window_set
+        from walkdiff.data.datamodule import MotionDataModule, data_settings
+        from walkdiff.evaluation.evaluate import MotionScorer, load_evaluator, window_set
 
         checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)
         self.datamodule = MotionDataModule(**data_settings(checkpoint))
@@ -1438,7 +1438,7 @@ def _serving_view(files: list[str]):
 
     started = time.perf_counter()
     server = subprocess.Popen(
-        [sys.executable, "-m", "walkdiff.cli.main", "view", *files, "--port", "0"],
+        [sys.executable, "-m", "walkdiff.cli", "view", *files, "--port", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env=os.environ | {"WALKDIFF_PROGRESS": "0"},
     )  # fmt: skip

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from walkdiff.autoregressive import gesture
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.tracking import log_file
 from walkdiff.motion.bvh import write_bvh
@@ -261,4 +262,37 @@ class WalkSamples(L.Callback):
                 log_file(logger, file, artifact_dir)
             log_image(logger, still, "samples/walk", step)
             log_image(logger, plot, "samples/walk_path", step)
+            return files if folder else []
+
+
+class GestureSamples(L.Callback):
+    """Every N epochs: a sample of the first take's held-out audio as BVH + GIF into the MLflow run.
+
+    Logged as `samples/epoch_NNNN/<take>.bvh` and `.gif`, always from the same seed, so successive
+    epochs can be compared.
+    """
+
+    def __init__(self, every_n_epochs: int = 10, seconds: float = 10.0, seed: int = 0):
+        self.every_n_epochs, self.seconds, self.seed = every_n_epochs, seconds, seed
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
+        epoch = preview_epoch(trainer, self.every_n_epochs)
+        if epoch is None:
+            return
+        self.write(pl_module, trainer.datamodule, trainer.logger, f"samples/epoch_{epoch:04d}")
+
+    def write(
+        self, pl_module, datamodule, logger, artifact_dir: str, folder: Path | None = None
+    ) -> list[Path]:
+        take = datamodule.load_takes()[0]
+        begin, end = datamodule.split_frames(take, "test")
+        end = min(end, begin + round(self.seconds * pl_module.spec["fps"]))
+        was_training = pl_module.training
+        pl_module.eval()
+        clip = gesture.synthesize(pl_module, take.audio[begin:end], 1, self.seed, smooth=True)[0]
+        pl_module.train(was_training)
+        with tempfile.TemporaryDirectory() as tmp:
+            files, _ = gesture.write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
+            for path in files:
+                log_file(logger, path, artifact_dir)
             return files if folder else []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import logging
 import os
 from pathlib import Path
@@ -249,3 +250,13 @@ class MotionDataModule(WindowLoaders):
                 raise WalkdiffError(
                     f"the {split} split has no {h.window}-frame windows; use a shorter data.window"
                 )
+
+
+def data_settings(checkpoint: dict, **overrides) -> dict:
+    """MotionDataModule arguments as stored by the run that wrote `checkpoint`, with overrides applied."""
+    spec = checkpoint.get("hyper_parameters", {}).get("data_spec", {})
+    settings = {k: spec[k] for k in ("dataset", "fps", "window") if k in spec}
+    settings |= checkpoint.get("datamodule_hyper_parameters", {}) or {}
+    settings |= {k: v for k, v in overrides.items() if v is not None}
+    accepted = inspect.signature(MotionDataModule).parameters
+    return {k: v for k, v in settings.items() if k in accepted}

@@ -17,7 +17,6 @@ better estimates of the feature mean and covariance than the training stride wou
 
 from __future__ import annotations
 
-import inspect
 import logging
 import math
 import time
@@ -32,7 +31,7 @@ from walkdiff.common.checkpoints import expect_class, read_checkpoint
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import write_json, write_text
 from walkdiff.common.progress import progress, step_hook
-from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.data.datamodule import MotionDataModule, data_settings
 from walkdiff.data.datasets import protocol_contents
 from walkdiff.metrics import (
     Diversity,
@@ -273,16 +272,6 @@ def load_evaluator(path: str | Path, device: str | torch.device = "cpu"):
     module, name = class_path.rsplit(".", 1)
     evaluator_class = getattr(importlib.import_module(module), name)
     return evaluator_class.from_trained(path, "evaluator", device)
-
-
-def data_settings(checkpoint: dict, **overrides) -> dict:
-    """MotionDataModule arguments as stored by the run that wrote `checkpoint`, with overrides applied."""
-    spec = checkpoint.get("hyper_parameters", {}).get("data_spec", {})
-    settings = {k: spec[k] for k in ("dataset", "fps", "window") if k in spec}
-    settings |= checkpoint.get("datamodule_hyper_parameters", {}) or {}
-    settings |= {k: v for k, v in overrides.items() if v is not None}
-    accepted = inspect.signature(MotionDataModule).parameters
-    return {k: v for k, v in settings.items() if k in accepted}
 
 
 # ---------------------------------------------------------------- the command

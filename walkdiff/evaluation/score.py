@@ -29,7 +29,7 @@ import torch
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import output_folder, read_utf8, write_json, write_text
 from walkdiff.common.progress import progress
-from walkdiff.evaluation.evaluate import MotionScorer, WindowSet, data_settings, load_evaluator, window_set
+from walkdiff.evaluation.evaluate import MotionScorer, WindowSet, load_evaluator, window_set
 from walkdiff.metrics import Diversity
 from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.metrics.physics import jerk_sums, skating_sums
@@ -72,7 +72,7 @@ class ClipScorer:
 
     def __init__(self, evaluator_path, root=None, cache_dir=None, contents=None, stride=None, batch_size=512):
         from walkdiff.common.checkpoints import read_checkpoint
-        from walkdiff.data.datamodule import MotionDataModule
+        from walkdiff.data.datamodule import MotionDataModule, data_settings
         from walkdiff.data.datasets import protocol_contents
 
         self.evaluator = load_evaluator(evaluator_path)

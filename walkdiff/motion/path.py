@@ -116,3 +116,10 @@ def read_path(path: str | Path) -> tuple[Polyline, float | None]:
 def write_path(path: str | Path, points: np.ndarray, speed: float | None = None) -> None:
     data = {"points": np.asarray(points).round(4).tolist()} | ({} if speed is None else {"speed": speed})
     write_json(path, data)
+
+
+def frames_for(path: Polyline, speed: float, fps: float) -> int:
+    """Frames to walk the whole path at `speed`."""
+    # A hair of tolerance: speeds are float32 tensors and paths converted from metres, so a walk of a
+    # whole number of frames may come out a millionth of a frame longer.
+    return max(2, math.ceil(path.length / speed * fps - 1e-4) + 1)

@@ -176,8 +176,7 @@ def distill(
     when given, is only a safety net, and a student it stopped says so (on the console and in its
     `distilled` record). `lambda_accel`: the weight of the acceleration term (distill_loss). Returns the
     run's record."""
-    from walkdiff.data.datamodule import MotionDataModule
-    from walkdiff.evaluation.evaluate import data_settings
+    from walkdiff.data.datamodule import MotionDataModule, data_settings
     from walkdiff.styled.generation import load_generator
 
     out_path = Path(out)
