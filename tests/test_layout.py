@@ -127,15 +127,16 @@ def test_the_checker_sees_circles_and_upward_arrows(tmp_path):
 
 def test_files_and_functions_stay_short():
     long = []
-    for module, path in FILES.items():
+    for path in FILES.values():
         text = path.read_text()
+        name = path.relative_to(PACKAGE.parent)
         if len(text.splitlines()) > MAX_FILE_LINES:
-            long.append(f"{path.relative_to(PACKAGE.parent)}: {len(text.splitlines())} lines")
+            long.append(f"{name}: {len(text.splitlines())} lines")
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 lines = node.end_lineno - node.lineno + 1
                 if lines > MAX_FUNCTION_LINES:
-                    long.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name}: {lines} lines")
+                    long.append(f"{name}:{node.lineno} {node.name}: {lines} lines")
     assert not long, "\n".join(long)
 
 
