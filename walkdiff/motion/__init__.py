@@ -1,1 +1,3 @@
-"""Motion geometry and files (BVH, skeleton, rotations, features); no Lightning here."""
+"""Motion files and geometry: BVH and glTF, skeletons and their profiles, rotations, the feature
+representation, mirroring, resampling, paths, foot clean-up and `inspect`/`convert`. No models, no datasets,
+no Lightning."""
