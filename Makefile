@@ -9,7 +9,7 @@ UI_PORT  ?= 5000
 
 EVALUATOR := checkpoints/evaluator_xia/last.ckpt
 
-.PHONY: install test train evaluator ui lint clean
+.PHONY: install test docs-check train evaluator ui lint clean
 
 install: $(STAMP)
 
@@ -22,6 +22,10 @@ $(STAMP): pyproject.toml $(LOCK)
 
 test: install
 	$(PY) -m pytest -q
+
+# Every command and link in README.md and docs/*.md against the real parser, configs, Makefile and files.
+docs-check: install
+	$(PY) -m pytest -q tests/test_docs.py
 
 # The motion evaluator (style + content classifier) that training metrics and `walkdiff evaluate` use.
 evaluator: $(EVALUATOR)

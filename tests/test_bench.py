@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 
-from walkdiff.bench.benchmarks import bench_gesture, report
+from walkdiff.bench.gesture import bench_gesture
+from walkdiff.bench.measure import report
 
 
 def test_report_writes_and_prints_the_result(tmp_path, capsys):

@@ -113,9 +113,9 @@ def test_unknown_tracking_uri_fails_before_training(xia_dir, capsys):
 
 def test_cli_offers_every_sampler_the_samplers_know():
     from walkdiff import diffusion
-    from walkdiff.cli import main as cli
+    from walkdiff.cli import options
 
-    assert cli.SAMPLERS == diffusion.SAMPLERS
+    assert options.SAMPLERS == diffusion.SAMPLERS
 
 
 def test_convert_refuses_to_clobber_and_bad_rates(xia_dir, tmp_path, capsys):

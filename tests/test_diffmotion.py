@@ -7,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import synthetic
+import tiny
 import torch
 from PIL import Image
-from test_speech import write_take
 
 from walkdiff.autoregressive.gesture import (
     beat_consistency,
@@ -32,8 +31,6 @@ from walkdiff.models.diffmotion import ATEncoder, DiffMotion
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.filters import savgol
 
-TINY = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=10)
-
 
 @pytest.fixture(autouse=True)
 def plain_argv(monkeypatch):
@@ -43,20 +40,7 @@ def plain_argv(monkeypatch):
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> tuple[Path, Path]:
     """A tiny model fitted for a few steps on two synthetic takes; (checkpoint, takes folder)."""
-    folder = tmp_path_factory.mktemp("speech") / "takes"
-    write_take(folder, "a", 10.0, seed=1)
-    write_take(folder, "b", 8.0, seed=2)
-    torch.manual_seed(0)
-    dm = SpeechDataModule(str(folder), window=40, stride=10, past=5, lookahead=8, batch_size=4)
-    model = DiffMotion(dm.spec, **TINY, lr=3e-3)
-    trainer = synthetic.quiet_trainer(max_steps=6)
-    before = model.eps_net.output.weight.detach().clone()
-    trainer.fit(model, dm)
-    assert not torch.equal(before, model.eps_net.output.weight), "training did not update the eps network"
-    assert np.isfinite(float(trainer.callback_metrics["loss/train"]))
-    ckpt = folder.parent / "tiny.ckpt"
-    trainer.save_checkpoint(ckpt)
-    return ckpt, folder
+    return tiny.gestures(tmp_path_factory.mktemp("speech"))
 
 
 def test_training_loss_falls_on_one_batch():
@@ -65,7 +49,7 @@ def test_training_loss_falls_on_one_batch():
         dataset="t", feature_dim=6, num_joints=2, window=20, fps=20.0, joints=("a", "b"), rotation="expmap",
         audio_dim=4, past=2, lookahead=3,
     )  # fmt: skip
-    model = DiffMotion(spec, **TINY, dropout=0.0)
+    model = DiffMotion(spec, **tiny.GESTURES, dropout=0.0)
     t = torch.linspace(0, 6, 20)
     poses = torch.stack([torch.sin(t * (k + 1)) for k in range(6)], dim=-1).expand(8, 20, 6)
     batch = {"poses": poses, "audio": torch.randn(8, 25, 4)}
@@ -110,7 +94,7 @@ def untrained_with_output(**options) -> DiffMotion:
     """A small untrained model whose eps network's output layer is not zero (as it is at initialisation),
     so that every layer of the network shows in the samples."""
     torch.manual_seed(0)
-    model = DiffMotion(SPEC, **TINY | options).eval()
+    model = DiffMotion(SPEC, **tiny.GESTURES | options).eval()
     torch.nn.init.normal_(model.eps_net.output.weight, std=0.5)
     torch.nn.init.normal_(model.eps_net.output.bias, std=0.5)
     return model

@@ -13,7 +13,8 @@ from test_evaluator import make_xia_subset, tiny_datamodule, tiny_trainer
 
 from walkdiff.callbacks.metrics import MotionMetrics
 from walkdiff.cli.main import main
-from walkdiff.evaluation.evaluate import METRICS, WindowSet, balanced_labels, halves_fmd, window_set
+from walkdiff.evaluation.evaluate import METRICS
+from walkdiff.evaluation.scorer import WindowSet, balanced_labels, halves_fmd, window_set
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
@@ -163,7 +164,7 @@ def test_callback_logs_metrics_and_images(setup, tmp_path):
 
 
 def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
-    from walkdiff.bench.benchmarks import bench_sample
+    from walkdiff.bench.sample import bench_sample
 
     torch.manual_seed(0)
     dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
@@ -198,7 +199,7 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
     assert (out / "sample.png").stat().st_size > 0
 
     # A distilled student against its teacher: the teacher's DDPM is the reference of every ratio.
-    from walkdiff.bench.benchmarks import bench_distill
+    from walkdiff.bench.distill import bench_distill
     from walkdiff.common.errors import WalkdiffError
     from walkdiff.styled.distill import distill
 

@@ -1,8 +1,6 @@
 """Sampling of any length, style mixing, guidance, transfer and the `sample` / `transfer` commands.
 
-A tiny generator is trained here for a few hundred batches on synthetic walks. It predicts x0: a tiny
-eps-model needs far longer before x0 = (x_t - sqrt(1 - abar) eps) / sqrt(abar) stops exploding at large t,
-and these tests are about the machinery around the network, which is the same for every prediction type.
+A tiny generator (tests/tiny.py) is trained here for a few hundred batches on synthetic walks.
 """
 
 from __future__ import annotations
@@ -10,18 +8,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import pytest
 import synthetic
+import tiny
 import torch
 from PIL import Image
 
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.diffusion import GaussianDiffusion, log_snr_timesteps
-from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.representation import features_to_positions
 from walkdiff.styled.generation import (
@@ -45,22 +41,7 @@ from walkdiff.styled.generation import (
 def ckpt(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("generation")
     synthetic.xia_like_folder(root, walk_clips=6, frames=240)
-    dm = MotionDataModule(
-        root=str(root), cache_dir=str(root / "cache"), batch_size=16, window=24, preprocess_workers=1
-    )
-    L.seed_everything(0)
-    model = StyledMotionDiffusion(
-        dm.spec, d_model=32, layers=1, heads=2, dropout=0.0, prediction="x0", lambda_adv=0.0, lr=3e-3,
-        lr_warmup_batches=10, ema_decay=0.9,
-    )  # fmt: skip
-    trainer = L.Trainer(
-        accelerator="cpu", max_epochs=60, logger=False, enable_progress_bar=False, enable_model_summary=False,
-        enable_checkpointing=False, limit_val_batches=0, num_sanity_val_steps=0,
-    )  # fmt: skip
-    trainer.fit(model, dm)
-    path = root / "tiny.ckpt"
-    trainer.save_checkpoint(path)
-    return path
+    return tiny.generator(root)
 
 
 @pytest.fixture(scope="module")
@@ -462,7 +443,7 @@ def test_frames_beyond_the_memory_estimate_are_refused_before_any_work(ckpt, tmp
 
 
 def test_memory_benchmark_records_peak_rss_per_frame_count(ckpt, tmp_path):
-    from walkdiff.bench.benchmarks import bench_memory
+    from walkdiff.bench.memory import bench_memory
 
     result = bench_memory(str(tmp_path / "mem.json"), str(ckpt), frames=(60,))
     (row,) = json.loads((tmp_path / "mem.json").read_text())["sample"]

@@ -20,7 +20,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.data import humanact12
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.evaluation.evaluate import load_evaluator
+from walkdiff.evaluation.scorer import load_evaluator
 from walkdiff.models.action_evaluator import ActionEvaluator
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 from walkdiff.motion.bvh import read_bvh, write_bvh

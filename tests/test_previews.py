@@ -16,7 +16,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.profile import ContactSpec
-from walkdiff.preview import render
+from walkdiff.preview import scene
 from walkdiff.preview.render import Marks, render_gif, render_strobe
 
 NAMES = ["Hips", "LeftUpLeg", "LeftFoot", "RightUpLeg", "RightFoot", "Spine", "Head"]
@@ -60,9 +60,9 @@ def test_contact_marks_show_on_planted_frames_only(tmp_path):
     gif = render_gif(tmp_path / "c.gif", stepper(), PARENTS, 30, names=NAMES, marks=marks(facing=False))
     frames = panel_frames(gif)
     panel = slice(0, 320)
-    for frame, limb in ((LEFT_PLANTED, render.LEFT), (RIGHT_PLANTED, render.RIGHT)):
+    for frame, limb in ((LEFT_PLANTED, scene.LEFT), (RIGHT_PLANTED, scene.RIGHT)):
         image = frames[frame][:320, panel]
-        dots = mask(image, render.PLANTED)
+        dots = mask(image, scene.PLANTED)
         assert dots.sum() > 10, frame
         # Under the planted foot: the dot is where that leg ends, not under the other one.
         _, foot_row, _, _ = extent(mask(image, limb))
@@ -70,8 +70,8 @@ def test_contact_marks_show_on_planted_frames_only(tmp_path):
         assert abs(rows.mean() - foot_row) < 8
         leg_cols = np.nonzero(mask(image, limb)[foot_row - 2 : foot_row + 1])[1]
         assert abs(cols.mean() - leg_cols.mean()) < 8
-    assert mask(frames[BOTH_UP][:320, panel], render.PLANTED).sum() == 0
-    assert mask(frames[CYCLE + BOTH_UP][:320, panel], render.PLANTED).sum() == 0
+    assert mask(frames[BOTH_UP][:320, panel], scene.PLANTED).sum() == 0
+    assert mask(frames[CYCLE + BOTH_UP][:320, panel], scene.PLANTED).sum() == 0
 
 
 @pytest.mark.parametrize("direction", [1.0, -1.0])
@@ -81,14 +81,14 @@ def test_facing_arrow_points_the_way_the_body_faces(tmp_path, direction):
     clip = stepper(direction=direction)
     frames = panel_frames(render_gif(tmp_path / "f.gif", clip, PARENTS, 30, names=NAMES, marks=marks()))
     for frame in frames[::10]:
-        rows, cols = np.nonzero(mask(frame[:320], render.FACING))
+        rows, cols = np.nonzero(mask(frame[:320], scene.FACING))
         assert len(cols) > 20
         assert np.sign(cols.mean() - 160) == direction and abs(cols.mean() - 160) > 15
     still = render_strobe(tmp_path / "f.png", clip, PARENTS, 30, names=NAMES, marks=marks())
     with Image.open(still) as image:
         pixels = np.asarray(image.convert("RGB"))[:220]  # the panel, without the legend
-    arrow = np.nonzero(mask(pixels, render.FACING))[1]
-    head_cols = np.nonzero(mask(pixels, render.BODY))[1]  # the last pose is the strongest body colour
+    arrow = np.nonzero(mask(pixels, scene.FACING))[1]
+    head_cols = np.nonzero(mask(pixels, scene.BODY))[1]  # the last pose is the strongest body colour
     assert np.sign(arrow.mean() - head_cols.mean()) == direction
 
 
@@ -98,8 +98,8 @@ def test_no_facing_arrow_where_the_hips_coincide(tmp_path):
     clip[:40, 3] = clip[:40, 1]  # both hips and both feet on one point for the first 40 frames
     clip[:40, 4] = clip[:40, 2]
     frames = panel_frames(render_gif(tmp_path / "x.gif", clip, PARENTS, 30, names=NAMES, marks=marks()))
-    assert mask(frames[10][:320], render.FACING).sum() == 0
-    assert mask(frames[60][:320], render.FACING).sum() > 20
+    assert mask(frames[10][:320], scene.FACING).sum() == 0
+    assert mask(frames[60][:320], scene.FACING).sum() > 20
     with pytest.raises(WalkdiffError, match="needs joint names"):
         render_gif(tmp_path / "x.gif", stepper(), PARENTS, 30, marks=marks())
 
@@ -114,15 +114,15 @@ def test_the_ruler_is_one_metre_on_the_ground_whatever_the_units(tmp_path, unit)
     gif = render_gif(tmp_path / "r.gif", standing / unit, PARENTS, 30, names=NAMES, marks=marks(unit))
     frame = panel_frames(gif)[0]
     panel = frame[:320]
-    ruler = mask(panel, render.RULER)
+    ruler = mask(panel, scene.RULER)
     row = np.bincount(np.nonzero(ruler)[0]).argmax()  # the ruler's line
     cols = np.nonzero(ruler[row])[0]
     metre = cols.max() - cols.min()
-    top, bottom, _, _ = extent(mask(panel, render.LEFT))
-    assert (bottom - top) / metre == pytest.approx(0.9 * np.cos(render.PITCH), rel=0.06)
+    top, bottom, _, _ = extent(mask(panel, scene.LEFT))
+    assert (bottom - top) / metre == pytest.approx(0.9 * np.cos(scene.PITCH), rel=0.06)
     # The legend below the panel: every mark's sample colour, and the ruler's.
     legend = frame[320:]
-    for color in (render.LEFT, render.RIGHT, render.PLANTED, render.FACING, render.RULER):
+    for color in (scene.LEFT, scene.RIGHT, scene.PLANTED, scene.FACING, scene.RULER):
         assert mask(legend, color).sum() > 5, color
 
 
@@ -142,9 +142,9 @@ def test_requested_path_is_drawn_where_the_path_lies(tmp_path):
     beside = on + [0.0, 0.4]
     gif = render_gif(tmp_path / "p.gif", [standing()] * 2, PARENTS, 30, names=NAMES, paths=[on, beside])
     frame = panel_frames(gif)[0]
-    under, aside = mask(frame[:, :320], render.PATH), mask(frame[:, 320:], render.PATH)
-    left_foot = extent(mask(frame[:, :320], render.LEFT))[1]  # on -Z: further away, higher up
-    right_foot = extent(mask(frame[:, :320], render.RIGHT))[1]
+    under, aside = mask(frame[:, :320], scene.PATH), mask(frame[:, 320:], scene.PATH)
+    left_foot = extent(mask(frame[:, :320], scene.LEFT))[1]  # on -Z: further away, higher up
+    right_foot = extent(mask(frame[:, :320], scene.RIGHT))[1]
     assert left_foot < right_foot
     middle = np.nonzero(under[:, 155:166].any(axis=1))[0]
     assert len(middle) and left_foot < middle.mean() < right_foot
@@ -168,8 +168,8 @@ def test_plot_and_gif_share_one_axis_convention(tmp_path):
     assert end[0] - start[0] > 50 and end[1] - start[1] > 50  # end: down (+Z) and right (+X) of the start
 
     frame = panel_frames(render_gif(tmp_path / "l.gif", standing(), PARENTS, 30, paths=[corner]))[0]
-    rows, cols = np.nonzero(mask(frame, render.PATH))
-    feet_row = np.nonzero(mask(frame, render.BODY))[0].max()  # the start: the root's ground point
+    rows, cols = np.nonzero(mask(frame, scene.PATH))
+    feet_row = np.nonzero(mask(frame, scene.BODY))[0].max()  # the start: the root's ground point
     lowest = rows.argmax()  # the corner: +Z from the start goes down the picture
     assert rows[lowest] > feet_row + 30
     assert cols.max() > cols[lowest] + 30  # and +X from the corner goes right

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image, ImageSequence
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.preview import render
+from walkdiff.preview import render, scene
 from walkdiff.preview.render import render_gif, render_png
 
 NAMES = ["Hips", "Spine", "Head", "LeftUpLeg", "LeftFoot", "RightUpLeg", "RightFoot", "LeftHand", "RightHand"]
@@ -87,7 +87,7 @@ def test_trail_is_drawn_behind_the_walker(tmp_path):
     clip = walker(90, 30)  # walks along +X, which the camera shows going right
     with_trail, _ = gif_frames(render_gif(tmp_path / "a.gif", clip, PARENTS, 30, colors=[body]))
     without, _ = gif_frames(render_gif(tmp_path / "b.gif", clip, PARENTS, 30, colors=[body], trail=False))
-    newest = render._mix(body, render.TRAIL_SHADES / (render.TRAIL_SHADES + 1))  # the trail's strongest shade
+    newest = scene._mix(body, scene.TRAIL_SHADES / (scene.TRAIL_SHADES + 1))  # the trail's strongest shade
     trail = mask(with_trail[-1], newest)
     assert trail.sum() > 20
     assert np.nonzero(trail)[1].mean() < 160 - 20  # left of the root, which stays in the middle
@@ -98,7 +98,7 @@ def test_trail_is_drawn_behind_the_walker(tmp_path):
 def test_left_and_right_limbs_are_coloured_by_name(tmp_path):
     named, _ = gif_frames(render_gif(tmp_path / "n.gif", walker(30), PARENTS, 30, names=NAMES))
     plain, _ = gif_frames(render_gif(tmp_path / "p.gif", walker(30), PARENTS, 30))
-    for color in (render.LEFT, render.RIGHT):
+    for color in (scene.LEFT, scene.RIGHT):
         assert mask(named[0], color).sum() > 50
         assert mask(plain[0], color).sum() == 0
 
@@ -108,8 +108,8 @@ def test_joint_sides_from_the_mirror_pairs_of_the_names():
              "LThumb", "RThumb", "RightForeArm", "LeftForeArm", "hip_r", "hip_l", "Bip01 L Foot",
              "Bip01 R Foot", "LowerBack", "Root", "Hips", "Head", "LeftEye"]  # fmt: skip
     sides = "LRLRLRLRLRRLRLLR" + "....."  # LeftEye has no partner: the centre colour
-    expected = [{"L": render.LEFT, "R": render.RIGHT, ".": None}[s] for s in sides]
-    assert render._sides(names) == expected
+    expected = [{"L": scene.LEFT, "R": scene.RIGHT, ".": None}[s] for s in sides]
+    assert scene.limb_sides(names) == expected
 
 
 def test_upright_framed_and_equal_scale(tmp_path):
@@ -127,9 +127,9 @@ def test_upright_framed_and_equal_scale(tmp_path):
         assert (small_bottom - small_top) / (bottom - top) == pytest.approx(0.5, abs=0.08)
     named = gif_frames(render_gif(tmp_path / "u.gif", clips[0], PARENTS, 30, names=NAMES))[0][0]
     # Upright: the head (centre colour) is above both feet.
-    head_top = extent(mask(named, render.BODY))[0]
-    assert head_top < extent(mask(named, render.LEFT))[1] - 100
-    assert head_top < extent(mask(named, render.RIGHT))[1] - 100
+    head_top = extent(mask(named, scene.BODY))[0]
+    assert head_top < extent(mask(named, scene.LEFT))[1] - 100
+    assert head_top < extent(mask(named, scene.RIGHT))[1] - 100
 
 
 def test_png_filmstrip(tmp_path):
@@ -140,7 +140,7 @@ def test_png_filmstrip(tmp_path):
         assert image.size == (4 * 100, 2 * 120)
         strip = np.asarray(image.convert("RGB"))
     cells = [strip[:120, k * 100 : (k + 1) * 100] for k in range(4)]
-    assert all(mask(cell, render.LEFT).any() for cell in cells)
+    assert all(mask(cell, scene.LEFT).any() for cell in cells)
     assert not np.array_equal(cells[0], cells[1])
 
 
@@ -214,7 +214,7 @@ def test_real_xia_clip_renders_quickly(xia_dir, tmp_path):
     frames, _ = gif_frames(path)
     assert len(frames) == 75  # 300 frames at 120 fps shown at 30 fps
     assert elapsed < 5.0  # about 0.15 s on one core; generous for a shared CI machine
-    top, bottom, left, right = extent(mask(frames[-1], render.LEFT))
+    top, bottom, left, right = extent(mask(frames[-1], scene.LEFT))
     assert 0 < top < bottom < 319 and 0 < left < right < 319
 
 

@@ -311,7 +311,7 @@ def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_p
 
 
 def test_bar_rows_find_the_first_epoch_at_bar_and_the_one_from_which_it_stays():
-    from walkdiff.bench.benchmarks import _bar_rows, _first
+    from walkdiff.bench.time_to_bar import _bar_rows, _first
 
     bar = {"style_acc": 0.8, "fmd": 10.0, "skate_ratio": 0.2}
     values = [(0.5, 50.0, 0.1), (0.9, 9.0, 0.1), (0.9, 11.0, 0.1), (0.9, 8.0, 0.2), (1.0, 7.0, 0.15)]
@@ -340,7 +340,7 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
     """`walkdiff bench train --to-bar` on a tiny config: its measurements, their times and the bar."""
     from mlflow import MlflowClient
 
-    from walkdiff.bench.benchmarks import BAR
+    from walkdiff.bench.time_to_bar import BAR
     from walkdiff.cli.main import main
     from walkdiff.models.evaluator import MotionEvaluator
 
@@ -401,7 +401,7 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
 
 
 def test_bench_train_times_a_config_in_its_own_precision(tiny_root, tmp_path):
-    from walkdiff.bench.benchmarks import bench_train
+    from walkdiff.bench.train import bench_train
 
     config = tmp_path / "bf16.yaml"
     text = probes.tiny_fit_config(tiny_root, "bf16", epochs=1, batches=4, callbacks=[])

@@ -10,21 +10,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import synthetic
+import tiny
 import torch
 from PIL import Image
 
 from walkdiff.autoregressive.walk import load_walker, path_error
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.xia import list_clips, load
 from walkdiff.models.path_walker import PathWalker, advance_root, local_offsets
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import FeatureLayout, encode, root_trajectory, yaw_matrix
 from walkdiff.motion.resample import resample
-
-TINY = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_layers=2, timesteps=8)
 
 
 @pytest.fixture(autouse=True)
@@ -119,7 +117,7 @@ def test_controls_of_real_walking_point_ahead(xia_dir):
     spec = dict(
         dataset="xia", feature_dim=194, num_joints=31, window=24, fps=30.0, styles=("a",), contents=("w",)
     )
-    model = PathWalker(spec, **TINY)
+    model = PathWalker(spec, **tiny.WALKER)
     clips = [c for c in list_clips(xia_dir) if c.content == 0][:6]
     for clip in clips:
         motion = load(clip)
@@ -146,21 +144,10 @@ def synthetic_root(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def trained(synthetic_root) -> Path:
     """A tiny walker fitted for a few steps on synthetic Xia-like walks; its checkpoint."""
-    root = synthetic_root
-    dm = MotionDataModule(
-        root=str(root), cache_dir=str(root / "cache"), window=24, stride=8, batch_size=4, preprocess_workers=1
-    )
-    torch.manual_seed(0)
-    model = PathWalker(dm.spec, **TINY, lr=3e-3)
-    trainer = synthetic.quiet_trainer(max_steps=4)
-    before = model.eps_net.output.weight.detach().clone()
-    trainer.fit(model, dm)
-    assert not torch.equal(before, model.eps_net.output.weight)
+    model, ckpt = tiny.walker(synthetic_root)
     speeds = model.style_speed.numpy()  # the synthetic walks go at 12 units/s; styles without data: 0
     np.testing.assert_allclose(speeds[[0, 4]], 12.0, rtol=0.05)
     assert np.all(np.delete(speeds, [0, 4]) == 0)
-    ckpt = root / "walker.ckpt"
-    trainer.save_checkpoint(ckpt)
     return ckpt
 
 
@@ -246,7 +233,7 @@ def test_walker_training_preview_draws_the_path(trained, tmp_path):
     """conf/walk_xia.yaml's callback: the first style walks a fixed path; the still (with the path on the
     ground), the plot (in metres), BVH, GIF and MP4 come out."""
     from walkdiff.callbacks.samples import WalkSamples
-    from walkdiff.preview.render import PATH
+    from walkdiff.preview.scene import PATH
 
     model = load_walker(trained)
     points = [[0.0, 0.0], [0.4, 0.0], [0.8, 0.2]]  # metres: ~16 units of the synthetic skeleton

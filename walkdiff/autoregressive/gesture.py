@@ -22,6 +22,7 @@ from __future__ import annotations
 import inspect
 import itertools
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -40,7 +41,8 @@ from walkdiff.metrics import Jitter
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.skeleton import Motion
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.take import Take
 from walkdiff.preview.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
 
 SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
@@ -89,6 +91,75 @@ def joint_positions(model, features: np.ndarray) -> np.ndarray:
     """(F, J, 3) world positions of the modelled joints."""
     joints = [model.skeleton.index(n) for n in model.spec["joints"]]
     return motion_world_positions(to_motion(model, features))[:, joints]
+
+
+class GestureGenerator:
+    """A trained DiffMotion: `gesture` makes gestures for speech and returns them as `Take`s on the
+    training files' skeleton, writing nothing; `walkdiff gesture` writes the same clips for the same seed."""
+
+    def __init__(self, model):
+        self.model = model
+
+    @classmethod
+    def load(cls, ckpt: str | Path, device: str = "cpu") -> GestureGenerator:
+        return cls(load_model(ckpt, device))
+
+    @property
+    def fps(self) -> float:
+        return self.model.spec["fps"]
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The training files' skeleton, which every `Take` is on."""
+        return self.model.profile.skeleton
+
+    def gesture(
+        self,
+        audio: str | os.PathLike | np.ndarray,
+        seed: int = 0,
+        samples: int = 1,
+        smooth: bool = True,
+        sampler: str = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        rate: int | None = None,
+    ) -> list[Take]:
+        """`samples` gesture clips, one frame per 1/fps of the speech: a WAV file, or samples (N,) or
+        (N, channels) at `rate` Hz. `smooth`: DiffMotion's Savitzky-Golay filter (the command's --smooth)."""
+        choice = SamplerChoice(sampler, steps, eta)
+        if samples < 1:
+            raise WalkdiffError(f"samples must be >= 1, got {samples}")
+        sound, rate = self.listen(audio, rate, samples)
+        mel = log_mel(sound, rate, self.fps, self.model.spec["audio_dim"])
+        clips = synthesize(self.model, mel, samples, seed, smooth, choice)
+        return [Take.from_canonical(to_motion(self.model, clip), self.model.profile) for clip in clips]
+
+    def listen(
+        self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1
+    ) -> tuple[np.ndarray, int]:
+        """Mono samples and their rate, refused where `streams` clips for them would not fit in memory
+        (a WAV file from its header, before its samples are read)."""
+        from_file = isinstance(audio, str | os.PathLike)
+        if from_file and rate is not None:
+            raise WalkdiffError("rate is for samples given as an array; a WAV file gives its own", path=audio)
+        sound = None if from_file else mono_samples(audio, rate)
+        seconds = wav_seconds(audio) if from_file else len(sound) / rate
+        # One frame per hop and one more, as log_mel's centred frames.
+        check_frames("--audio", math.floor(seconds * self.fps) + 1, GESTURE_BYTES_PER_FRAME, streams)
+        return read_wav(audio) if from_file else (sound, int(rate))
+
+
+def mono_samples(audio: np.ndarray, rate: int | None) -> np.ndarray:
+    """Speech given as samples (N,) or (N, channels) at `rate` Hz, made what read_wav gives: mono float32."""
+    if isinstance(rate, bool) or not isinstance(rate, int | np.integer) or rate <= 0:
+        raise WalkdiffError(f"rate: samples given as an array need their rate in whole Hz > 0, got {rate!r}")
+    sound = np.asarray(audio, dtype=np.float32)
+    sound = sound.mean(axis=1) if sound.ndim == 2 else sound
+    if sound.ndim != 1 or not len(sound):
+        raise WalkdiffError(f"audio: expected samples (N,) or (N, channels), got shape {np.shape(audio)}")
+    if not np.isfinite(sound).all():
+        raise WalkdiffError("audio: samples that are not finite numbers; expected audio in [-1, 1]")
+    return sound
 
 
 def write_clips(
@@ -143,12 +214,9 @@ def gesture(
     stem, out = Path(audio).stem, output_folder(out)
     targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
     check_free([*targets, Path(out) / f"{stem}.gif", Path(out) / f"{stem}.mp4"], overwrite)
-    model = load_model(ckpt)
-    # From the file's header, so a WAV too long is refused before its samples are read; one frame per hop
-    # and one more, as log_mel's centred frames.
-    frames = math.floor(wav_seconds(audio) * model.spec["fps"]) + 1
-    check_frames("--audio", frames, GESTURE_BYTES_PER_FRAME, streams)
-    samples, rate = read_wav(audio)
+    generator = GestureGenerator.load(ckpt)
+    model = generator.model
+    samples, rate = generator.listen(audio, streams=streams)
     mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
     start = time.perf_counter()
     clips = synthesize(model, mel, streams, seed, smooth, choice)

@@ -8,6 +8,7 @@ evaluator's style recognition on the generated walk cut into the evaluator's win
 from __future__ import annotations
 
 import math
+import os
 import time
 from pathlib import Path
 
@@ -21,9 +22,10 @@ from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.path import Polyline, frames_for, read_path
+from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_path
 from walkdiff.motion.representation import decode
-from walkdiff.motion.skeleton import Motion
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.take import Take
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 
@@ -60,6 +62,78 @@ def walk_paths(
 def to_motion(model, raw: np.ndarray, start: tuple[np.ndarray, float]) -> Motion:
     fps = model.spec["fps"]
     return decode(raw, model.skeleton, 1.0 / fps, start_position=start[0], start_heading=start[1])
+
+
+def path_in_metres(path: Polyline | str | os.PathLike | list | np.ndarray) -> tuple[Polyline, float | None]:
+    """A path as the walker's users give it, in metres: a Polyline, (x, z) points, or a path file (and
+    the file's speed in m/s, None if it gives none)."""
+    if isinstance(path, Polyline):
+        return path, None
+    if isinstance(path, str | os.PathLike):
+        return read_path(path)
+    return checked_polyline(path.tolist() if isinstance(path, np.ndarray) else path), None
+
+
+class PathFollower:
+    """A trained PathWalker: `follow` walks a style along a path and returns the walk as a `Take` on the
+    training files' skeleton, writing nothing; `walkdiff walk` writes the same walk for the same seed."""
+
+    def __init__(self, model):
+        self.model = model
+
+    @classmethod
+    def load(cls, ckpt: str | Path, device: str = "cpu") -> PathFollower:
+        return cls(load_walker(ckpt, device))
+
+    @property
+    def styles(self) -> tuple[str, ...]:
+        return tuple(self.model.spec["styles"])
+
+    @property
+    def fps(self) -> float:
+        return self.model.spec["fps"]
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The training files' skeleton, which every `Take` is on."""
+        return self.model.profile.skeleton
+
+    def follow(
+        self,
+        path: Polyline | str | os.PathLike | list | np.ndarray,
+        style: str,
+        speed: float | None = None,
+        seed: int = 0,
+        sampler: str = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+    ) -> Take:
+        """`style` walking along `path` ((x, z) points or a Polyline in metres, or a path file) at `speed`
+        m/s: by default the file's, else the style's own pace in the training data."""
+        choice = SamplerChoice(sampler, steps, eta)
+        metres, file_speed = path_in_metres(path)
+        motion, _ = self.walk_along(metres, style, file_speed if speed is None else speed, seed, choice)
+        return Take.from_canonical(motion, self.model.profile)
+
+    def check(self, style: str, speed: float | None) -> int:
+        """The style's index, once the style and the speed (m/s, None: the style's own) are valid."""
+        if style not in self.styles:
+            raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(self.styles)}")
+        if speed is not None and not 0 < speed < math.inf:
+            raise WalkdiffError(f"--speed must be a positive number of metres per second, got {speed}")
+        return self.styles.index(style)
+
+    def walk_along(
+        self, metres: Polyline, style: str, speed: float | None, seed: int, choice: SamplerChoice
+    ) -> tuple[Motion, float]:
+        """The canonical walk of `style` along a path in metres at `speed` m/s (None: the style's own),
+        and the speed it walked at in m/s."""
+        index = self.check(style, speed)
+        unit = self.model.profile.metres_per_unit
+        polyline = Polyline.of(metres.points / unit)  # the model walks in its data's units
+        speed = None if speed is None else speed / unit
+        raw, start, speeds = walk_paths(self.model, polyline, [index], speed, seed, sampler=choice)
+        return to_motion(self.model, raw[0], start), float(speeds[0]) * unit
 
 
 def path_error(path: Polyline, root_xz: np.ndarray) -> dict[str, float]:
@@ -146,17 +220,11 @@ def walk(
     walking along the path file, each frame drawn by the sampler (`SamplerChoice`)."""
     choice = SamplerChoice(sampler, steps, eta)
     cap = PreviewCap(preview_seconds) if gif else None
-    model = load_walker(ckpt)
-    styles = list(model.spec["styles"])
-    if style not in styles:
-        raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(styles)}")
-    if speed is not None and not 0 < speed < math.inf:
-        raise WalkdiffError(f"--speed must be a positive number of metres per second, got {speed}")
+    follower = PathFollower.load(ckpt)
+    model = follower.model
+    follower.check(style, speed)  # before the path file is read
     metres, file_speed = read_path(path)
     unit = model.profile.metres_per_unit
-    polyline = Polyline.of(metres.points / unit)  # the model walks in its data's units
-    speed = speed or file_speed
-    speed = None if speed is None else speed / unit
     out = output_folder(out)
     stem = f"{style}_{Path(path).stem}"
     bvh = out / f"{stem}.bvh"
@@ -165,13 +233,13 @@ def walk(
     out.mkdir(parents=True, exist_ok=True)
 
     started = time.perf_counter()
-    raw, start, speeds = walk_paths(model, polyline, [styles.index(style)], speed, seed, sampler=choice)
+    motion, speed_m_s = follower.walk_along(metres, style, speed or file_speed, seed, choice)
     elapsed = time.perf_counter() - started
-    motion = to_motion(model, raw[0], start)
     root_xz = motion.root_positions[:, [0, 2]]
     write_bvh(bvh, model.to_file(motion))
     files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, metres, [(style, root_xz * unit)])])]
     if cap is not None:
+        polyline = Polyline.of(metres.points / unit)  # drawn in the model's units, as it walked
         gif = render_walk(out / f"{stem}.gif", model, motion, polyline, cap)
         files += [gif, gif.with_suffix(".mp4")]
     manifest = {
@@ -179,7 +247,7 @@ def walk(
         "style": style,
         "path": str(path),
         "path_length_m": metres.length,
-        "speed_m_s": float(speeds[0]) * unit,
+        "speed_m_s": speed_m_s,
         "seed": seed,
         "sampler": choice.label(model.diffusion),
         "frames": motion.num_frames,
@@ -248,12 +316,11 @@ def walk_stream(
 
     from walkdiff.autoregressive.streaming import WalkStream, emit, read_growing, read_pipe
 
-    model = load_walker(ckpt)
-    styles = list(model.spec["styles"])
-    if style not in styles:
-        raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(styles)}")
+    follower = PathFollower.load(ckpt)
+    model = follower.model
+    index = follower.check(style, speed)
     unit, fps = model.profile.metres_per_unit, model.spec["fps"]
-    units_per_s = float(model.style_speed[styles.index(style)]) if speed is None else speed / unit
+    units_per_s = float(model.style_speed[index]) if speed is None else speed / unit
     if not units_per_s > 0:
         raise WalkdiffError("the checkpoint has no walking speed for this style; give --speed")
     out = output_folder(out)
@@ -261,9 +328,7 @@ def walk_stream(
     bvh = out / f"{stem}.bvh"
     check_free([bvh], overwrite)
     chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    stream = WalkStream(
-        model, styles.index(style), units_per_s, seed, sampler=SamplerChoice(sampler, steps, eta)
-    )
+    stream = WalkStream(model, index, units_per_s, seed, sampler=SamplerChoice(sampler, steps, eta))
     names = model.profile.skeleton.names
     emit({
         "fps": fps, "joints": names, "units_per_metre": 1 / unit,

@@ -11,7 +11,7 @@ import torch
 
 from walkdiff.autoregressive.walk import load_walker, path_error, plot_paths, to_motion, walk_paths
 from walkdiff.common.files import write_json
-from walkdiff.evaluation.evaluate import load_evaluator
+from walkdiff.evaluation.scorer import load_evaluator
 from walkdiff.motion.path import Polyline, frames_for
 
 

@@ -16,7 +16,7 @@ from walkdiff.callbacks.checkpoints import mlflow_logger
 from walkdiff.callbacks.tracking import checkpoint_tags
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.tracking import log_file
-from walkdiff.evaluation.evaluate import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
+from walkdiff.evaluation.scorer import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
 
 
 class MotionMetrics(L.Callback):

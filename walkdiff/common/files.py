@@ -147,14 +147,15 @@ def output_lock(path: str | Path, command: str) -> Iterator[Path]:
         os.close(fd)  # releases the flock
 
 
-def check_free(paths: list[Path], overwrite: bool) -> None:
-    """Refuse to replace existing outputs unless `overwrite`: a WalkdiffError listing them."""
+def check_free(paths: list[Path], overwrite: bool, option: str = "--overwrite") -> None:
+    """Refuse to replace existing outputs unless `overwrite`: a WalkdiffError listing them and naming the
+    `option` that allows it (the command's flag, or the Python argument)."""
     from walkdiff.common.errors import WalkdiffError
 
     taken = [str(p) for p in paths if Path(p).exists()]
     if taken and not overwrite:
         more = f" and {len(taken) - 3} more" if len(taken) > 3 else ""
-        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}{more}; pass --overwrite to replace them")
+        raise WalkdiffError(f"would overwrite {', '.join(taken[:3])}{more}; pass {option} to replace them")
 
 
 def output_folder(path: str | Path, option: str = "--out") -> Path:

@@ -30,7 +30,7 @@ class MotionSource(Protocol):
     folder: Path
     styles: tuple[str, ...]
     groups: tuple[str, ...]
-    profile: dict  # profile overrides (walkdiff.motion.profile.OVERRIDE_FIELDS)
+    profile: dict  # profile overrides (walkdiff.motion.profile_detection.OVERRIDE_FIELDS)
 
     def list_clips(self) -> list[ClipInfo]: ...
 

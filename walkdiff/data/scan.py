@@ -12,6 +12,7 @@ import json
 import math
 import re
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -74,73 +75,9 @@ def scan(
     if fps is not None and not (isinstance(fps, int | float) and math.isfinite(fps) and fps > 0):
         raise WalkdiffError(f"fps: expected a positive frame rate, got {fps!r}")
 
-    skeleton_profile: SkeletonProfile | None = None
-    frames, frame_times = [], []
-    bar = progress(clips, desc="reading BVH", unit="file", show=len(clips) > PROGRESS_ABOVE)
-    for clip in bar:
-        motion = source.load(clip)
-        if skeleton_profile is None:
-            skeleton_profile = SkeletonProfile.detect(motion, source.profile)
-        skeleton_profile.check(motion.skeleton, clip.path)
-        frames.append(motion.num_frames)
-        frame_times.append(motion.frame_time)
-    assert skeleton_profile is not None
-    frames_arr, frame_times_arr = np.asarray(frames), np.asarray(frame_times)
-    rates = 1.0 / frame_times_arr
-    durations = frames_arr * frame_times_arr
-
-    training_fps = _number(fps) if fps is not None else _suggest_fps(float(rates.min()))
-    training_frames = np.floor((frames_arr - 1) * training_fps / rates + 1e-6).astype(int) + 1
-    window = min(round(WINDOW_SECONDS * training_fps), int(np.percentile(training_frames, 10)))
-    window = max(window, MIN_WINDOW)
-    window -= window % 2
-    stride = max(1, window // STRIDES_PER_WINDOW)
-
-    selection = ContentSelection(tuple(source.groups))
-    splits = source.split_clips(clips, selection)
-    seconds = {c.name: float(d) for c, d in zip(clips, durations)}
-
-    joints = skeleton_profile.skeleton.num_joints
-    lines = [f"Folder: {folder} ({len(clips)} BVH files, one skeleton of {joints} joints)"]
-    lines.append(f"Skeleton profile (found from {clips[0].name}; overrides: {source.profile or 'none'}):")
-    lines += ["  " + line for line in skeleton_profile.describe()]
-
-    notes = list(skeleton_profile.notes)
-    rate_counts = Counter(round(float(r), 2) for r in rates)
-    if len(rate_counts) > 1:
-        notes.append(f"{len(rate_counts)} frame rates: every clip is resampled to {training_fps:g} fps")
-    short = int((training_frames < window).sum())
-    if short:
-        notes.append(f"{short} clips are shorter than the window ({window} frames) and are not trained on")
-    for split in ("val", "test"):
-        if not splits[split]:
-            notes.append(f"no {split} clips: a label pair needs 2 (test) or 3 (val) clips, or a split column")
-    lines.append("Notes:" if notes else "Notes: none")
-    lines += [f"  - {note}" for note in notes]
-
-    lines.append(
-        "Frame rates: "
-        + ", ".join(f"{rate:g} fps: {n} file{'s' * (n != 1)}" for rate, n in sorted(rate_counts.items()))
-    )
-    total = float(durations.sum())
-    lines.append(
-        f"Duration: {total:.1f} s in total ({total / 60:.1f} min); clips of {frames_arr.min()} to "
-        f"{frames_arr.max()} frames ({durations.min():.2f} to {durations.max():.2f} s)"
-    )
-    lines += _label_lines(source, clips)
-
-    lines.append(f"Clip length at {training_fps:g} fps (p{' / p'.join(str(p) for p in PERCENTILES)}):")
-    lines.append("  frames:  " + " / ".join(f"{v:.0f}" for v in np.percentile(training_frames, PERCENTILES)))
-    lines.append("  seconds: " + " / ".join(f"{v:.2f}" for v in np.percentile(durations, PERCENTILES)))
-    lines.append(
-        "Splits (clips, seconds): "
-        + ", ".join(f"{s} {len(splits[s])} ({sum(seconds[c.name] for c in splits[s]):.1f} s)" for s in SPLITS)
-    )
-    lines.append(
-        f"Suggested: fps {training_fps:g}, window {window} ({window / training_fps:.2f} s), stride {stride}, "
-        f"mirror {'true' if skeleton_profile.mirror_pairs else 'false'}"
-    )
-
+    found = _read_clips(source, clips)
+    suggested = _suggest(found, fps)
+    lines = _report(folder, source, clips, found, suggested)
     if out is None:
         lines.append("To write the two training configs, scan again with an output folder (--out DIR).")
         return "\n".join(lines)
@@ -152,16 +89,16 @@ def scan(
         **{k: options[k] for k in ("val_fraction", "test_fraction") if k in options},
         **({"profile": dict(source.profile)} if source.profile else {}),
         "contents": "all",
-        "fps": training_fps,
-        "window": window,
-        "stride": stride,
-        "mirror": bool(skeleton_profile.mirror_pairs),
+        "fps": suggested.fps,
+        "window": suggested.window,
+        "stride": suggested.stride,
+        "mirror": bool(found.profile.mirror_pairs),
         "batch_size": 64,
         "num_workers": 0,
     }
     summary = (
-        f"# {len(clips)} clips, {total / 60:.1f} min, {len(source.styles)} style(s), "
-        f"{len(source.groups)} content group(s); root {skeleton_profile.root}."
+        f"# {len(clips)} clips, {found.durations.sum() / 60:.1f} min, {len(source.styles)} style(s), "
+        f"{len(source.groups)} content group(s); root {found.profile.root}."
     )
     texts = (
         _evaluator_config(name, folder, summary, data),
@@ -179,7 +116,109 @@ def config_name(text: str) -> str:
     return re.sub(r"[^a-z0-9_]+", "_", text.lower()).strip("_") or "folder"
 
 
+# ---------------------------------------------------------------- reading and suggesting
+
+
+@dataclass(frozen=True)
+class _Found:
+    """What reading every clip found: the skeleton profile (from the first clip) and each clip's length."""
+
+    profile: SkeletonProfile
+    frames: np.ndarray  # per clip
+    rates: np.ndarray  # frames per second, per clip
+    durations: np.ndarray  # seconds, per clip
+
+
+@dataclass(frozen=True)
+class _Suggested:
+    """The training settings suggested for the clips."""
+
+    fps: int | float
+    frames: np.ndarray  # each clip's frames at `fps`
+    window: int
+    stride: int
+
+
+def _read_clips(source: FolderSource, clips) -> _Found:
+    """Every clip read and checked to be on the first clip's skeleton."""
+    skeleton_profile: SkeletonProfile | None = None
+    frames, frame_times = [], []
+    bar = progress(clips, desc="reading BVH", unit="file", show=len(clips) > PROGRESS_ABOVE)
+    for clip in bar:
+        motion = source.load(clip)
+        if skeleton_profile is None:
+            skeleton_profile = SkeletonProfile.detect(motion, source.profile)
+        skeleton_profile.check(motion.skeleton, clip.path)
+        frames.append(motion.num_frames)
+        frame_times.append(motion.frame_time)
+    assert skeleton_profile is not None
+    frames_arr, frame_times_arr = np.asarray(frames), np.asarray(frame_times)
+    return _Found(skeleton_profile, frames_arr, 1.0 / frame_times_arr, frames_arr * frame_times_arr)
+
+
+def _suggest(found: _Found, fps: float | None) -> _Suggested:
+    """The training frame rate (`fps` when given), window and stride that fit the clips' lengths."""
+    training_fps = _number(fps) if fps is not None else _suggest_fps(float(found.rates.min()))
+    training_frames = np.floor((found.frames - 1) * training_fps / found.rates + 1e-6).astype(int) + 1
+    window = min(round(WINDOW_SECONDS * training_fps), int(np.percentile(training_frames, 10)))
+    window = max(window, MIN_WINDOW)
+    window -= window % 2
+    stride = max(1, window // STRIDES_PER_WINDOW)
+    return _Suggested(training_fps, training_frames, window, stride)
+
+
 # ---------------------------------------------------------------- report helpers
+
+
+def _report(folder: Path, source: FolderSource, clips, found: _Found, suggested: _Suggested) -> list[str]:
+    """The report's lines: the skeleton profile, notes, frame rates, lengths, labels, splits, suggestion."""
+    profile, durations = found.profile, found.durations
+    splits = source.split_clips(clips, ContentSelection(tuple(source.groups)))
+    seconds = {c.name: float(d) for c, d in zip(clips, durations)}
+    joints = profile.skeleton.num_joints
+    lines = [f"Folder: {folder} ({len(clips)} BVH files, one skeleton of {joints} joints)"]
+    lines.append(f"Skeleton profile (found from {clips[0].name}; overrides: {source.profile or 'none'}):")
+    lines += ["  " + line for line in profile.describe()]
+
+    notes = list(profile.notes)
+    rate_counts = Counter(round(float(r), 2) for r in found.rates)
+    if len(rate_counts) > 1:
+        notes.append(f"{len(rate_counts)} frame rates: every clip is resampled to {suggested.fps:g} fps")
+    short = int((suggested.frames < suggested.window).sum())
+    if short:
+        notes.append(
+            f"{short} clips are shorter than the window ({suggested.window} frames) and are not trained on"
+        )
+    for split in ("val", "test"):
+        if not splits[split]:
+            notes.append(f"no {split} clips: a label pair needs 2 (test) or 3 (val) clips, or a split column")
+    lines.append("Notes:" if notes else "Notes: none")
+    lines += [f"  - {note}" for note in notes]
+
+    lines.append(
+        "Frame rates: "
+        + ", ".join(f"{rate:g} fps: {n} file{'s' * (n != 1)}" for rate, n in sorted(rate_counts.items()))
+    )
+    total = float(durations.sum())
+    lines.append(
+        f"Duration: {total:.1f} s in total ({total / 60:.1f} min); clips of {found.frames.min()} to "
+        f"{found.frames.max()} frames ({durations.min():.2f} to {durations.max():.2f} s)"
+    )
+    lines += _label_lines(source, clips)
+
+    fps, window, stride = suggested.fps, suggested.window, suggested.stride
+    lines.append(f"Clip length at {fps:g} fps (p{' / p'.join(str(p) for p in PERCENTILES)}):")
+    lines.append("  frames:  " + " / ".join(f"{v:.0f}" for v in np.percentile(suggested.frames, PERCENTILES)))
+    lines.append("  seconds: " + " / ".join(f"{v:.2f}" for v in np.percentile(durations, PERCENTILES)))
+    lines.append(
+        "Splits (clips, seconds): "
+        + ", ".join(f"{s} {len(splits[s])} ({sum(seconds[c.name] for c in splits[s]):.1f} s)" for s in SPLITS)
+    )
+    lines.append(
+        f"Suggested: fps {fps:g}, window {window} ({window / fps:.2f} s), stride {stride}, "
+        f"mirror {'true' if profile.mirror_pairs else 'false'}"
+    )
+    return lines
 
 
 def _number(value: float) -> int | float:

@@ -30,6 +30,7 @@ from walkdiff.evaluation.score import (
     transfer_row,
     transfer_verdict,
 )
+from walkdiff.evaluation.scorer import generate_windows
 
 SAMPLE_METRICS = ("style_acc", "fmd", "kid", "diversity", "skate_ratio", "jitter")
 TRANSFER_METRICS = ("target_style_acc", "content_kept", "content_distance", "fmd", "kid", "skate_ratio")
@@ -44,8 +45,6 @@ def _clips_of_raw(scorer: ClipScorer, raw: torch.Tensor, styles: list[str], cont
 
 
 def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, bootstrap: int, **sampling):
-    from walkdiff.evaluation.evaluate import generate_windows
-
     contents = list(model.spec["contents"])
     content_ids = [contents.index(n) for n in scorer.data.selection.names]
     generator = torch.Generator(device=model.device).manual_seed(seed)

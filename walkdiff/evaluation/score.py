@@ -29,7 +29,7 @@ import torch
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import output_folder, read_utf8, write_json, write_text
 from walkdiff.common.progress import progress
-from walkdiff.evaluation.evaluate import MotionScorer, WindowSet, load_evaluator, window_set
+from walkdiff.evaluation.scorer import MotionScorer, WindowSet, load_evaluator, window_set
 from walkdiff.metrics import Diversity
 from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.metrics.physics import jerk_sums, skating_sums

@@ -96,21 +96,27 @@ def read_path(path: str | Path) -> tuple[Polyline, float | None]:
         if speed is not None and (not isinstance(speed, int | float) or not 0 < speed < math.inf):
             raise WalkdiffError(f"'speed' must be a positive number (m/s), got {speed!r}", path=path)
         data = data["points"]
-    if not isinstance(data, list) or len(data) < 2:
+    return checked_polyline(data, path), None if speed is None else float(speed)
+
+
+def checked_polyline(points, path: str | Path | None = None) -> Polyline:
+    """A path from its points [[x, z], ...] (a JSON list, or pairs from Python), or a WalkdiffError
+    naming the point that is wrong and `path`, the file they came from."""
+    if not isinstance(points, list | tuple) or len(points) < 2:
         raise WalkdiffError("'points' must be a list of at least 2 [x, z] pairs", path=path)
-    for i, point in enumerate(data):
+    for i, point in enumerate(points):
         if (
-            not isinstance(point, list)
+            not isinstance(point, list | tuple)
             or len(point) != 2
             or not all(isinstance(v, int | float) and math.isfinite(v) for v in point)
         ):
             raise WalkdiffError(
                 f"points[{i}] must be a pair of finite numbers [x, z], got {point!r}", path=path
             )
-    polyline = Polyline.of(data)
+    polyline = Polyline.of(points)
     if polyline.length <= 0:
         raise WalkdiffError("the path has no length: all its points coincide", path=path)
-    return polyline, None if speed is None else float(speed)
+    return polyline
 
 
 def write_path(path: str | Path, points: np.ndarray, speed: float | None = None) -> None:

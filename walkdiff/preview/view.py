@@ -19,7 +19,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.conversion import file_profile
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.preview.render import _sides
+from walkdiff.preview.scene import limb_sides
 
 CENTRE = (60, 60, 60)
 ROW_SPACING = 1.2  # metres between the clips' rows
@@ -61,7 +61,7 @@ def load_clip(path: str | Path, profile: str | None = None) -> ViewedClip:
     canonical = found.to_canonical(motion)
     world = motion_world_positions(canonical) * found.metres_per_unit
     parents = canonical.skeleton.parents
-    sides = [side or CENTRE for side in _sides(canonical.skeleton.names)]
+    sides = [side or CENTRE for side in limb_sides(canonical.skeleton.names)]
     joints = np.flatnonzero(parents >= 0)
     colors = np.array([[sides[j], sides[j]] for j in joints], dtype=np.uint8)
     return ViewedClip(path.stem, world, parents, colors, canonical.fps)

@@ -1,4 +1,4 @@
-"""Using a trained GAN-DDPM: `walkdiff sample` and `walkdiff transfer`, motion of any length.
+"""How a trained GAN-DDPM makes motion of any length and restyles clips: windows, samplers, transfer.
 
 The model denoises fixed windows (24 frames at 30 fps for Xia). Longer motion is made window after window:
 each window after the first starts `overlap` frames before the end of what exists, and those frames are
@@ -9,31 +9,24 @@ Transfer restyles a clip (SDEdit): its features are noised to step strength·T w
 from there under the target style, window by window as above. The noise level sets how much of the
 original survives: content and timing at 0.6, little but the path at 1.0. `keep_trajectory` inpaints the
 root velocity and turning channels with the source's, so the restyled clip walks exactly the source's path.
+
+styled/pipeline.py puts this behind one object (`walkdiff.load`); styled/commands.py writes its clips.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.common.files import check_free, output_folder, write_json
-from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice, log_snr_timesteps, respace, run_steps, step_coefficients
-from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.motion.footfix import fix_feet
-from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions, start_pose
-from walkdiff.motion.resample import resample
-from walkdiff.motion.skeleton import Motion
-from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
+from walkdiff.motion.representation import FeatureLayout, features_to_positions
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]
@@ -85,11 +78,6 @@ def parse_style(model, text: str) -> tuple[torch.Tensor, str]:
     mix /= mix.sum()
     label = "+".join(f"{n}{round(100 * w / sum(weights))}" for n, w in zip(names, weights, strict=True))
     return mix, label
-
-
-def _batch(style: torch.Tensor, count: int) -> torch.Tensor:
-    """One style id () or mixing vector (S,) repeated for a batch."""
-    return style.expand(count, *style.shape).clone()
 
 
 # ---------------------------------------------------------------- windows
@@ -303,7 +291,7 @@ def restyle(
         return windowed(batch, frames, dim, window, overlap, denoise, blend)
 
 
-# ---------------------------------------------------------------- files
+# ---------------------------------------------------------------- loading
 
 
 def load_generator(path: str | Path, device: str = "cpu"):
@@ -311,213 +299,3 @@ def load_generator(path: str | Path, device: str = "cpu"):
     from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
     return StyledMotionDiffusion.from_trained(path, "generator", device)
-
-
-def _finish(model, raw: np.ndarray, start: tuple[np.ndarray, float] | None, feet: bool) -> Motion:
-    """Features in data units (F, D) -> a clip on the training skeleton, feet cleaned up if asked."""
-    fps = model.spec["fps"]
-    position, heading = start if start is not None else (None, 0.0)
-    motion = decode(raw, model.skeleton, 1.0 / fps, position, heading)
-    if feet:
-        contacts = raw[:, FeatureLayout(model.skeleton.num_joints).contacts]
-        motion = fix_feet(motion, contacts, model.profile.contacts)
-    return motion
-
-
-def _write_clip(
-    model,
-    path: Path,
-    motion: Motion,
-    title: str,
-    cap: PreviewCap | None,
-    others: tuple[tuple[Motion, str], ...] = (),
-) -> None:
-    """A canonical clip as BVH on the training files' skeleton; the GIF and MP4 previews (unless `cap` is
-    None) show the canonical (Y-up) clip's first seconds, only whose joint positions are computed."""
-    write_bvh(path, model.to_file(motion))
-    if cap is not None:
-        clips = [*others, (motion, title)]
-        shown = cap.frames(max(m.num_frames for m, _ in clips), motion.fps, len(clips))
-        render_gif(
-            path.with_suffix(".gif"),
-            [motion_world_positions(m.slice(0, shown)) for m, _ in clips],
-            motion.skeleton.parents,
-            motion.fps,
-            names=motion.skeleton.names,
-            titles=[t for _, t in clips],
-            cap=cap,
-            video=True,
-            marks=Marks.of(model.profile),
-        )
-
-
-def sample(
-    ckpt: str | Path,
-    out: str | Path,
-    style: str,
-    content: str = "walk",
-    num: int = 8,
-    frames: int = 300,
-    seed: int = 0,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    guidance: float = 1.0,
-    overlap: int | None = None,
-    blend: int | None = None,
-    ground: bool = True,
-    fix_feet: bool = False,
-    gif: bool = True,
-    preview_seconds: float = PREVIEW_SECONDS,
-    overwrite: bool = False,
-    device: str = "cpu",
-) -> dict:
-    """`walkdiff sample`: `num` clips as BVH (+ GIF previews of their first `preview_seconds`) and
-    `manifest.json` in `out`; returns the manifest."""
-    if num < 1:
-        raise WalkdiffError(f"--num must be at least 1, got {num}")
-    if frames >= 1:  # window_plan names a bad --frames
-        check_frames("--frames", frames, SAMPLE_BYTES_PER_FRAME, num)
-    sampling = Sampling(sampler, steps, eta, guidance)
-    cap = PreviewCap(preview_seconds) if gif else None
-    model = load_generator(ckpt, device)
-    style_label, label = parse_style(model, style)
-    content_id = model.label_ids([content], "content")[0]
-    out = output_folder(out)
-    names = [f"{label}_{content}_{i:03d}" for i in range(num)]
-    manifest_path = out / "manifest.json"
-    bvh = [out / f"{n}.bvh" for n in names]
-    previews = [p.with_suffix(suffix) for p in bvh for suffix in (".gif", ".mp4")] if gif else []
-    check_free(bvh + previews + [manifest_path], overwrite)
-    overlap, blend = resolve_windows(model.spec["window"], overlap, blend)
-    window_plan(frames, model.spec["window"], overlap)
-
-    generator = torch.Generator(device=model.device).manual_seed(seed)
-    started = time.perf_counter()
-    x = generate_long(
-        model, _batch(style_label, num), _batch(content_id, num), frames, sampling, generator, overlap, blend
-    )
-    generated = time.perf_counter() - started
-    raw = model.to_raw(x, ground)
-    out.mkdir(parents=True, exist_ok=True)
-    del x  # the features are kept in data units (raw) only
-    for path, features in zip(bvh, raw, strict=True):
-        _write_clip(model, path, _finish(model, features, None, fix_feet), f"{label} {content}", cap)
-    manifest = {
-        "command": "sample",
-        "checkpoint": str(ckpt),
-        "settings": {
-            "style": style,
-            "content": content,
-            "num": num,
-            "frames": frames,
-            "fps": model.spec["fps"],
-            **asdict(sampling),
-            "overlap": overlap,
-            "blend": blend,
-            "ground": ground,
-            "fix_feet": fix_feet,
-            "distilled_jumps": model.jumps(sampler, steps, eta) is not None,
-        },
-        "seed": seed,
-        "files": [p.name for p in bvh],
-        "preview": None if cap is None else cap.describe(frames, model.spec["fps"]),
-        "timing": {
-            "generate_s": round(generated, 3),
-            "write_s": round(time.perf_counter() - started - generated, 3),
-            "generated_frames_per_s": round(num * frames / generated, 1),
-        },
-    }
-    write_json(manifest_path, manifest)
-    return manifest
-
-
-def transfer(
-    ckpt: str | Path,
-    input: str | Path,
-    out: str | Path,
-    style: str,
-    content: str = "walk",
-    strength: float = 0.6,
-    keep_trajectory: bool = False,
-    seed: int = 0,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    guidance: float = 1.0,
-    overlap: int | None = None,
-    blend: int | None = None,
-    ground: bool = True,
-    fix_feet: bool = False,
-    gif: bool = True,
-    preview_seconds: float = PREVIEW_SECONDS,
-    overwrite: bool = False,
-    device: str = "cpu",
-) -> dict:
-    """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source (of their first
-    `preview_seconds`) and a JSON report."""
-    sampling = Sampling(sampler, steps, eta, guidance)
-    cap = PreviewCap(preview_seconds) if gif else None
-    model = load_generator(ckpt, device)
-    style_label, label = parse_style(model, style)
-    content_id = model.label_ids([content], "content")[0]
-    noised_steps(model, strength, sampling)  # bad strength fails before any work
-    overlap, blend = resolve_windows(model.spec["window"], overlap, blend)
-    input = Path(input)
-    motion = read_bvh(input)
-    model.profile.check(motion.skeleton, input)
-    motion = model.profile.to_canonical(motion)
-    fps = model.spec["fps"]
-    if abs(motion.fps - fps) > 1e-3 * fps:
-        motion = resample(motion, fps)
-    check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
-    out = output_folder(out)
-    target = out / f"{input.stem}_to_{label}.bvh"
-    report_path = target.with_suffix(".json")
-    previews = [target.with_suffix(".gif"), target.with_suffix(".mp4")] if gif else []
-    check_free([target, report_path, *previews], overwrite)
-
-    source = model.normalizer.normalize(torch.from_numpy(encode(motion, model.profile)))[None]
-    generator = torch.Generator(device=model.device).manual_seed(seed)
-    started = time.perf_counter()
-    x = restyle(
-        model, source, _batch(style_label, 1), _batch(content_id, 1), strength, sampling, generator,
-        keep_trajectory, overlap, blend,
-    )  # fmt: skip
-    elapsed = time.perf_counter() - started
-    result = _finish(model, model.to_raw(x, ground)[0], start_pose(motion, model.profile), fix_feet)
-    out.mkdir(parents=True, exist_ok=True)
-    _write_clip(model, target, result, label, cap, others=((motion, "source"),))
-    report = {
-        "command": "transfer",
-        "checkpoint": str(ckpt),
-        "input": str(input),
-        "settings": {
-            "style": style,
-            "content": content,
-            "strength": strength,
-            "keep_trajectory": keep_trajectory,
-            "frames": motion.num_frames,
-            "fps": fps,
-            **asdict(sampling),
-            "overlap": overlap,
-            "blend": blend,
-            "ground": ground,
-            "fix_feet": fix_feet,
-        },
-        "seed": seed,
-        "file": target.name,
-        "preview": None if cap is None else cap.describe(motion.num_frames, fps, panels=2),
-        "root_path_error": root_path_error(motion, result),
-        "timing": {"restyle_s": round(elapsed, 3)},
-    }
-    write_json(report_path, report)
-    return report
-
-
-def root_path_error(source: Motion, result: Motion) -> dict[str, float]:
-    """Mean horizontal distance between the two root paths, absolute and relative to the distance walked."""
-    a, b = source.root_positions[:, [0, 2]], result.root_positions[:, [0, 2]]
-    walked = float(np.linalg.norm(np.diff(a, axis=0), axis=1).sum())
-    error = float(np.linalg.norm(a - b, axis=1).mean())
-    return {"mean": error, "walked": walked, "relative": error / walked if walked > 0 else float("nan")}

@@ -1,0 +1,297 @@
+"""`walkdiff bench WHAT`: each benchmark's options beside the call that runs it (walkdiff.bench holds the
+benchmarks themselves)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from walkdiff.cli.options import SAMPLERS, frame_sampler_options
+from walkdiff.common.arguments import count, number
+from walkdiff.common.errors import WalkdiffError
+
+
+def add_parsers(sub) -> None:
+    p = sub.add_parser("bench", help="benchmarks; results written as JSON")
+    bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    for add in (
+        add_data, add_train, add_gesture, add_stream, add_memory, add_view, add_walk, add_distill, add_sample,
+        add_protocol,
+    ):  # fmt: skip
+        add(bench)
+    for b in bench.choices.values():
+        b.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run")
+
+
+def frame_counts(text: str, option: str) -> tuple[int, ...]:
+    """Comma-separated whole numbers >= 1, in the order given."""
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise WalkdiffError(f"{option}: expected comma-separated whole numbers >= 1, got {text!r}")
+    return values
+
+
+def strengths(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or not all(0 < v <= 1 for v in values):
+        raise WalkdiffError(f"--strengths: expected comma-separated numbers in (0, 1], got {text!r}")
+    return values
+
+
+def quality_options(b: argparse.ArgumentParser, num: int) -> None:
+    """What the benchmarks that score samples with an evaluator share."""
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    b.add_argument("--num", type=count(1), default=num, help=f"windows per setting and seed (default {num})")
+    b.add_argument("--seed", type=count(0), default=0, help="first seed (default 0)")
+    b.add_argument("--seeds", type=count(1), default=3, help="seeds averaged per setting (default 3)")
+    b.add_argument(
+        "--no-ground", dest="ground", action="store_false",
+        help="score windows as sampled (needed for checkpoints saved before grounding existed)",
+    )  # fmt: skip
+
+
+def add_data(bench) -> None:
+    b = bench.add_parser("data", help="cold/warm preprocessing of the dataset and DataLoader throughput")
+    b.add_argument("--out", required=True)
+    b.add_argument("--dataset", default="xia")
+    b.add_argument("--root", default=None)
+    b.set_defaults(run=run_data)
+
+
+def run_data(args: argparse.Namespace) -> None:
+    from walkdiff.bench.data import bench_data
+
+    bench_data(args.out, args.dataset, args.root)
+
+
+def add_train(bench) -> None:
+    b = bench.add_parser("train", help="training windows/s under Lightning vs a plain PyTorch loop")
+    b.add_argument("--out", required=True)
+    b.add_argument("--config", default="conf/xia_cpu.yaml")
+    b.add_argument("--batches", type=count(1), default=30, help="batches timed per repeat")
+    b.add_argument(
+        "--to-bar", action="store_true",
+        help="train the config to its epoch bound and report when its metrics reach the quality bar",
+    )  # fmt: skip
+    b.add_argument(
+        "--evaluator",
+        default=None,
+        help="with --to-bar: the metrics callback's evaluator (default: the config's)",
+    )
+    b.add_argument(
+        "--repeats", type=count(1), default=5, help="with --to-bar: draws of real held-out windows"
+    )
+    b.add_argument(
+        "fit_args", nargs="*", metavar="-- FIT_OPTION",
+        help="with --to-bar, after --: `walkdiff fit` overrides of the config (-- --model.lr 1e-3)",
+    )  # fmt: skip
+    b.set_defaults(run=run_train)
+
+
+def run_train(args: argparse.Namespace) -> None:
+    """Seconds per batch, or with --to-bar a whole run timed to the quality bar."""
+    if args.to_bar:
+        from walkdiff.bench.time_to_bar import bench_time_to_bar
+
+        bench_time_to_bar(args.out, args.config, args.evaluator, args.repeats, args.fit_args)
+    elif args.fit_args:
+        raise WalkdiffError(f"bench train takes fit options only with --to-bar: {' '.join(args.fit_args)}")
+    else:
+        from walkdiff.bench.train import bench_train
+
+        bench_train(args.out, args.config, args.batches)
+
+
+def add_gesture(bench) -> None:
+    b = bench.add_parser(
+        "gesture", help="DiffMotion s/frame (1 stream: DDPM and few-step, plain and fused), batched streams"
+    )
+    b.add_argument("--out", required=True)
+    b.add_argument(
+        "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
+    )
+    b.add_argument("--frames", type=count(1), default=40, help="frames timed per setting (default 40)")
+    b.add_argument("--repeats", type=count(1), default=5, help="interleaved rounds (default 5)")
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="the few-step sampler (default ddim)")
+    b.add_argument("--steps", type=count(1), default=10, help="its steps (default 10)")
+    b.add_argument("--eta", type=number(0, 1), default=1.0, help="DDIM noise (default 1: as DDPM's steps)")
+    b.add_argument("--streams", default="16,64,128", help="batched streams timed (default 16,64,128)")
+    b.set_defaults(run=run_gesture)
+
+
+def run_gesture(args: argparse.Namespace) -> None:
+    from walkdiff.bench.gesture import bench_gesture
+
+    bench_gesture(
+        args.out, args.ckpt, args.frames, args.repeats, args.sampler, args.steps, args.eta,
+        frame_counts(args.streams, "--streams"),
+    )  # fmt: skip
+
+
+def add_stream(bench) -> None:
+    b = bench.add_parser(
+        "stream", help="streaming latency (audio in -> pose out, path point -> frame) and real-time streams"
+    )
+    b.add_argument("--out", required=True)
+    b.add_argument(
+        "--ckpt", default=None, help="DiffMotion checkpoint (default: an untrained ZEGGS-sized one)"
+    )
+    b.add_argument(
+        "--walker", default=None, help="PathWalker checkpoint (default: an untrained Xia-sized one)"
+    )
+    b.add_argument(
+        "--seconds",
+        type=number(0, above=True),
+        default=6.0,
+        help="audio / walking fed in real time (default 6)",
+    )
+    b.add_argument("--chunk-ms", type=number(0, above=True), default=20.0, help="audio chunk (default 20 ms)")
+    b.add_argument(
+        "--rate", type=count(1), default=16000, help="sample rate when the model records none (default 16000)"
+    )
+    b.add_argument("--frames", type=count(1), default=6, help="frames timed per stream count (default 6)")
+    b.add_argument("--most", type=count(1), default=256, help="most streams tried (default 256)")
+    b.add_argument(
+        "--threads",
+        default="1,2",
+        help="torch thread counts the streams are timed at (default 1,2; latency: 1)",
+    )
+    frame_sampler_options(b)
+    b.set_defaults(run=run_stream)
+
+
+def run_stream(args: argparse.Namespace) -> None:
+    from walkdiff.bench.stream import bench_stream
+
+    bench_stream(
+        args.out, args.ckpt, args.walker, args.seconds, args.chunk_ms, args.rate, args.frames, args.most,
+        threads=frame_counts(args.threads, "--threads"), sampler=args.sampler, steps=args.steps, eta=args.eta,
+    )  # fmt: skip
+
+
+def add_memory(bench) -> None:
+    b = bench.add_parser("memory", help="peak memory of `walkdiff sample --frames N --num 1` per N")
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument("--frames", default="300,10000,100000", help="frame counts (default 300,10000,100000)")
+    b.add_argument("--walker", default=None, help="PathWalker checkpoint: also `walk` along long paths")
+    b.add_argument("--gesture", default=None, help="DiffMotion checkpoint: also `gesture` on long audio")
+    b.add_argument("--audio", default=None, help="speech WAV, repeated to each of --seconds (with --gesture)")
+    b.add_argument("--seconds", default="10,120", help="walk / speech seconds (default 10,120)")
+    b.set_defaults(run=run_memory)
+
+
+def run_memory(args: argparse.Namespace) -> None:
+    from walkdiff.bench.memory import bench_memory
+
+    bench_memory(
+        args.out, args.ckpt, frame_counts(args.frames, "--frames"), args.walker, args.gesture,
+        args.audio, frame_counts(args.seconds, "--seconds"),
+    )  # fmt: skip
+
+
+def add_view(bench) -> None:
+    b = bench.add_parser(
+        "view", help="seconds until `walkdiff view` shows its skeletons in headless Chromium"
+    )
+    b.add_argument("files", nargs="*", help="BVH files (default: the first two of the data root's xia/)")
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument(
+        "--repeats", type=count(1), default=5, help="page loads, each in a fresh browser (default 5)"
+    )
+    b.set_defaults(run=run_view)
+
+
+def run_view(args: argparse.Namespace) -> None:
+    from walkdiff.bench.view import bench_view
+
+    bench_view(args.out, args.files, args.repeats)
+
+
+def add_walk(bench) -> None:
+    b = bench.add_parser("walk", help="path-following error and style accuracy of walks along test paths")
+    b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (style accuracy)")
+    b.add_argument("--out", required=True, help="JSON file; the plot goes next to it as .png")
+    b.add_argument("--seed", type=count(0), default=0)
+    b.set_defaults(run=run_walk)
+
+
+def run_walk(args: argparse.Namespace) -> None:
+    from walkdiff.bench.walk import bench_walk
+    from walkdiff.common.files import strict_json
+
+    print(json.dumps(strict_json(bench_walk(args.out, args.ckpt, args.evaluator, args.seed)), indent=2))
+
+
+def add_distill(bench) -> None:
+    b = bench.add_parser("distill", help="a distilled student's DDIM FMD against its teacher's DDPM")
+    b.add_argument("--teacher", required=True, help="the checkpoint the student was distilled from")
+    b.add_argument("--student", required=True, help="the checkpoint `walkdiff distill` wrote")
+    b.add_argument("--out", required=True, help="JSON file")
+    quality_options(b, 256)
+    b.set_defaults(run=run_distill)
+
+
+def run_distill(args: argparse.Namespace) -> None:
+    from walkdiff.bench.distill import bench_distill
+
+    bench_distill(
+        args.out, args.teacher, args.student, args.evaluator, num=args.num, seed=args.seed,
+        seeds=args.seeds, ground=args.ground,
+    )  # fmt: skip
+
+
+def add_sample(bench) -> None:
+    b = bench.add_parser("sample", help="FMD/style accuracy vs sampling steps, speed, --fix-feet, transfer")
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--out", required=True, help="folder for sample.json and sample.png")
+    b.add_argument(
+        "--strength", type=number(0, 1, above=True), default=0.6, help="transfer noise level (default 0.6)"
+    )
+    quality_options(b, 400)
+    b.set_defaults(run=run_sample)
+
+
+def run_sample(args: argparse.Namespace) -> None:
+    from walkdiff.bench.sample import bench_sample
+
+    bench_sample(
+        args.out, args.ckpt, args.evaluator, num=args.num, seed=args.seed, seeds=args.seeds,
+        strength=args.strength, ground=args.ground,
+    )  # fmt: skip
+
+
+def add_protocol(bench) -> None:
+    b = bench.add_parser(
+        "protocol", help="sampling and transfer rows of the evaluation protocol beside its baselines"
+    )
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    b.add_argument(
+        "--student",
+        default=None,
+        help="a distilled student's checkpoint (a row for each of its DDIM step counts)",
+    )
+    b.add_argument("--out", required=True, help="folder for protocol.json and protocol.md")
+    b.add_argument("--strengths", default="0.4,0.6,0.8", help="transfer strengths (default 0.4,0.6,0.8)")
+    b.add_argument("--samples", type=count(1), default=256, help="windows per sampling row (default 256)")
+    b.add_argument("--bootstrap", type=count(0), default=200, help="resamples of the clips (default 200)")
+    b.add_argument("--seed", type=count(0), default=0)
+    b.set_defaults(run=run_protocol)
+
+
+def run_protocol(args: argparse.Namespace) -> None:
+    from walkdiff.evaluation.protocol import bench_protocol
+
+    bench_protocol(
+        args.out, args.ckpt, args.evaluator, args.student, strengths(args.strengths), args.samples,
+        args.bootstrap, args.seed,
+    )  # fmt: skip
+    print(f"wrote {args.out}/protocol.json and protocol.md")

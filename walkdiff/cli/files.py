@@ -1,0 +1,110 @@
+"""Commands on motion files as they are: `inspect`, `convert`, `view` and `data scan`."""
+
+from __future__ import annotations
+
+import argparse
+
+from walkdiff.cli.options import PROFILE_HELP, keyword_options
+from walkdiff.common.arguments import count, number
+
+
+def add_parsers(sub) -> None:
+    p = sub.add_parser(
+        "inspect", help="summarise a BVH file: joints, frames, fps, contacts, anything suspicious"
+    )
+    p.add_argument("file")
+    p.add_argument("--profile", default=None, help=PROFILE_HELP)
+    p.set_defaults(run=run_inspect)
+
+    p = sub.add_parser(
+        "convert",
+        help="BVH -> features -> BVH, or BVH -> binary glTF (.glb); optionally resampled and/or mirrored",
+    )
+    p.add_argument("input")
+    p.add_argument("output")
+    p.add_argument("--fps", type=number(0, above=True), default=None, help="resample to this frame rate")
+    p.add_argument("--mirror", action="store_true", help="swap left and right (in world space)")
+    p.add_argument("--profile", default=None, help=PROFILE_HELP)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.set_defaults(run=run_convert)
+
+    p = sub.add_parser("view", help="play BVH files side by side in 3-D in the browser (orbit, scrub, play)")
+    p.add_argument("files", nargs="+", help="BVH files (any skeleton; shown Y up in metres)")
+    p.add_argument("--port", type=count(0), default=8080, help="port (default 8080; 0: any free port)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: this machine only)")
+    p.add_argument("--profile", default=None, help=PROFILE_HELP)
+    p.set_defaults(run=run_view)
+
+    p = sub.add_parser("data", help="your own motion capture: `walkdiff data scan DIR`")
+    data = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    add_scan(data)
+
+
+def add_scan(data) -> None:
+    d = data.add_parser(
+        "scan",
+        help="a folder of BVH files: skeleton profile, frame rates, labels, clip lengths, suggested window; "
+        "with --out, the evaluator and generator configs that `walkdiff fit --config` runs",
+    )
+    d.add_argument("folder", help="folder of BVH files (searched recursively)")
+    d.add_argument("--labels", default=None, help="CSV/JSON manifest: file, style, content, split columns")
+    d.add_argument("--pattern", default=None, help="regular expression with named groups style / content")
+    d.add_argument("--default-style", default=None, help="style of clips without one")
+    d.add_argument("--default-content", default=None, help="content of clips without one")
+    d.add_argument(
+        "--val-fraction",
+        type=number(0, 1, below=True),
+        default=None,
+        help="per label, held out for validation",
+    )
+    d.add_argument(
+        "--test-fraction", type=number(0, 1, below=True), default=None, help="per label, held out for testing"
+    )
+    d.add_argument("--profile", default=None, help=PROFILE_HELP)
+    d.add_argument(
+        "--fps",
+        type=number(0, above=True),
+        default=None,
+        help="training frame rate (default: 30, or the data's)",
+    )
+    d.add_argument("--name", default=None, help="config name (default: the folder's name)")
+    d.add_argument("--out", default=None, help="folder to write the two configs into")
+    d.add_argument("--overwrite", action="store_true", help="replace existing configs")
+    d.set_defaults(run=run_scan)
+
+
+def run_inspect(args: argparse.Namespace) -> None:
+    from walkdiff.motion.conversion import inspect_file
+
+    print(inspect_file(args.file, args.profile))
+
+
+def run_convert(args: argparse.Namespace) -> None:
+    from walkdiff.motion.conversion import convert_file
+
+    print(
+        convert_file(
+            args.input,
+            args.output,
+            fps=args.fps,
+            mirror_sides=args.mirror,
+            profile=args.profile,
+            overwrite=args.overwrite,
+        )  # fmt: skip
+    )
+
+
+def run_view(args: argparse.Namespace) -> None:
+    from walkdiff.preview.view import view
+
+    view(args.files, host=args.host, port=args.port, profile=args.profile)
+
+
+def run_scan(args: argparse.Namespace) -> None:
+    from walkdiff.common.files import read_config
+    from walkdiff.data.scan import scan
+
+    options = keyword_options(args)
+    if options["profile"]:
+        options["profile"] = read_config(options["profile"], "--profile")
+    print(scan(**options))

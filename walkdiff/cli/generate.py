@@ -1,0 +1,69 @@
+"""Styled motion from a StyledMotionDiffusion checkpoint: `sample` (from noise) and `transfer` (restyling a
+clip)."""
+
+from __future__ import annotations
+
+import argparse
+
+from walkdiff.cli.options import PREVIEW_HELP, SAMPLER_HELP, SAMPLERS, keyword_options
+from walkdiff.common.arguments import count, number
+
+
+def add_parsers(sub) -> None:
+    p = sub.add_parser("sample", help="generate styled motion of any length: BVH + GIF + manifest.json")
+    sampling_options(p)
+    p.add_argument("--num", type=count(1), default=8, help="clips (default 8)")
+    p.add_argument(
+        "--frames", type=count(1), default=300, help="frames per clip at the model's fps (default 300)"
+    )
+    p.set_defaults(run=run_generation)
+
+    p = sub.add_parser("transfer", help="restyle a BVH clip (noise to strength*T, denoise in the new style)")
+    sampling_options(p)
+    p.add_argument("--input", required=True, help="BVH clip on the model's skeleton (any frame rate)")
+    p.add_argument(
+        "--strength", type=number(0, 1, above=True), default=0.6, help="noise level in (0, 1] (default 0.6)"
+    )
+    p.add_argument("--keep-trajectory", action="store_true", help="keep the source's root path exactly")
+    p.set_defaults(run=run_generation)
+
+
+def sampling_options(p: argparse.ArgumentParser) -> None:
+    """What `sample` and `transfer` share: the model, the style, the sampler and how windows are joined."""
+    p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--style", required=True, help="a style, or a mix: angry:0.7,old:0.3")
+    p.add_argument("--content", default="walk", help="content group (default walk)")
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
+    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+    p.add_argument("--guidance", type=number(0), default=1.0, help="classifier-free guidance (1: none)")
+    p.add_argument(
+        "--overlap",
+        type=count(0),
+        default=None,
+        help="frames shared by consecutive windows (default: half a window)",
+    )
+    p.add_argument(
+        "--blend", type=count(0), default=None, help="of those, frames cross-faded (default: half)"
+    )
+    p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
+    p.add_argument(
+        "--no-ground", dest="ground", action="store_false",
+        help="keep the height as sampled (default: planted feet lifted or lowered onto the floor)",
+    )  # fmt: skip
+    p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
+    p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+
+
+def run_generation(args: argparse.Namespace) -> None:
+    """`sample` or `transfer`: the styled commands' function of the same name."""
+    from walkdiff.styled import commands
+
+    report = getattr(commands, args.command)(**keyword_options(args))
+    print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in report["timing"].items()))
+    if report["preview"] is not None:
+        print(f"preview: {report['preview']['note']}")

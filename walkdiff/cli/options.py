@@ -1,0 +1,37 @@
+"""Help texts and options that several command families share, so each reads the same wherever it appears."""
+
+from __future__ import annotations
+
+import argparse
+
+from walkdiff.common.arguments import count, number
+
+# diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
+SAMPLERS = ("ddpm", "ddim", "dpmpp")
+SAMPLER_HELP = (
+    "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "
+    "solved to second order, closer to DDPM at 10 steps for the same cost"
+)
+
+FRAME_SAMPLER_HELP = (
+    "per frame: ddpm, ancestral over all N trained steps (default); ddim over --steps of them (--eta its "
+    "noise); dpmpp, DPM-Solver++(2M) over --steps (see the README's speed and quality table)"
+)
+
+PREVIEW_HELP = "seconds of each clip the GIF preview shows, from its start (default 20)"
+PROFILE_HELP = (
+    "YAML/JSON of skeleton profile overrides (root, left_heel, left_toe, right_heel, right_toe, up, forward, "
+    "units, body_height, contact_speed, contact_height, mirror_pairs); the rest is found from the file"
+)
+
+
+def frame_sampler_options(p: argparse.ArgumentParser) -> None:
+    """Options of the per-frame sampler of DiffMotion and the path walker."""
+    p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=FRAME_SAMPLER_HELP)
+    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+
+
+def keyword_options(args: argparse.Namespace) -> dict:
+    """The parsed options as keyword arguments of the function a command runs: all but the command's name."""
+    return {key: value for key, value in vars(args).items() if key not in ("command", "what")}

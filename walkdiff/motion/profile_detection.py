@@ -1,0 +1,527 @@
+"""How a `SkeletonProfile` is found from a BVH clip: each field the configuration does not give.
+
+- root: the joint whose translation moves. Static joints above it (constant transform over the clip)
+  are *folded*: their transform is applied to the root and restored, as it was, on export.
+- feet: heel (ankle) and toe of each side, by name over the common conventions (CMU, Mixamo, SMPL,
+  Unreal, DAZ, Biped ...), else the ends of the two leg chains (the left/right pair nearest the root).
+- left/right pairs by name (`walkdiff.motion.mirror.find_mirror_pairs`).
+- up: the signed file axis from the feet to the root over the clip; `forward`: the root's local axis
+  that points where the body faces (up x (right - left) over the clip's left/right pairs).
+- units (metres per unit) from the body height when it is a human height in m, cm, mm or inches;
+  otherwise estimated for a 1.7 m body and said so.
+- contact thresholds from the body height: speed `CONTACT_SPEED` heights/s (per frame: that over the
+  frame rate), height `CONTACT_HEIGHT` heights. On Xia (25.4 units tall) that is 5.1 units/s and
+  0.51 units, within 2% of the thresholds measured by hand on its foot speeds.
+
+Also the tree and axis geometry a profile uses to turn a clip into its canonical frame.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import torch
+
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion.mirror import find_mirror_pairs
+from walkdiff.motion.skeleton import Motion, Skeleton
+
+CONTACT_SPEED = 0.2  # body heights per second
+CONTACT_HEIGHT = 0.02  # body heights above the foot's own floor
+ASSUMED_HEIGHT_M = 1.7  # when the units cannot be told from the body height
+
+# Body heights (file units) of a human in each unit, and metres per unit.
+_UNITS = (
+    ("m", 1.0, 1.0, 2.3),
+    ("cm", 0.01, 100.0, 230.0),
+    ("mm", 0.001, 1000.0, 2300.0),
+    ("in", 0.0254, 39.0, 91.0),
+)
+_UNIT_NAMES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254, "ft": 0.3048}
+
+AXES = {
+    "+x": (1, 0, 0),
+    "-x": (-1, 0, 0),
+    "+y": (0, 1, 0),
+    "-y": (0, -1, 0),
+    "+z": (0, 0, 1),
+    "-z": (0, 0, -1),
+}
+
+# Heel/ankle and toe names; words that rule a joint out (fingers, end joints, twist/roll helpers).
+_HEEL = re.compile(r"(foot|ankle|heel)", re.IGNORECASE)
+_TOE = re.compile(r"(toe|ball)", re.IGNORECASE)
+_NOT_FOOT = re.compile(r"(end|nub|site|index|thumb|finger|twist|roll|ik|target|pole)", re.IGNORECASE)
+
+NO_FEET = (
+    "no feet found (no joints named like feet/ankles/toes on both sides, no left/right leg chains): "
+    "contacts need them; name them in the profile (left_heel, left_toe, right_heel, right_toe)"
+)
+
+OVERRIDE_FIELDS = (
+    "root", "left_heel", "left_toe", "right_heel", "right_toe", "up", "forward", "units",
+    "body_height", "contact_speed", "contact_height", "mirror_pairs",
+)  # fmt: skip
+
+
+# ---------------------------------------------------------------- axes
+
+
+def axis_rotation(up: tuple[float, float, float]) -> np.ndarray:
+    """The proper rotation U with U @ up = +Y (the smallest turn; a half turn about X for -Y)."""
+    up = np.asarray(up, dtype=np.float64)
+    y = np.array([0.0, 1.0, 0.0])
+    if np.allclose(up, y):
+        return np.eye(3)
+    if np.allclose(up, -y):
+        return np.diag([1.0, -1.0, -1.0])
+    axis = np.cross(up, y)
+    angle = np.arccos(np.clip(up @ y, -1.0, 1.0))
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def axis_name(v: np.ndarray) -> str:
+    """'+y' for an axis, '(0.00, 0.94, 0.33)' for any other direction."""
+    name = next((name for name, a in AXES.items() if np.allclose(a, v)), None)
+    return name or "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
+
+
+def _snap(v: np.ndarray, degrees: float) -> tuple[np.ndarray, float]:
+    """The signed unit axis nearest `v` if within `degrees`, else `v` normalised; and the angle to it."""
+    v = v / max(np.linalg.norm(v), 1e-12)
+    axis = np.zeros(3)
+    i = int(np.argmax(np.abs(v)))
+    axis[i] = np.sign(v[i])
+    angle = float(np.degrees(np.arccos(np.clip(v @ axis, -1, 1))))
+    return (axis if angle <= degrees else v), angle
+
+
+# ---------------------------------------------------------------- the tree and its poses
+
+
+def subtree(skeleton: Skeleton, joint: int) -> list[int]:
+    """`joint` and every joint below it, in file order."""
+    inside = {joint}
+    for j in range(joint + 1, skeleton.num_joints):  # parents precede children
+        if skeleton.parents[j] in inside:
+            inside.add(j)
+    return sorted(inside)
+
+
+def ancestors(skeleton: Skeleton, joint: int) -> list[int]:
+    """The joints above `joint`, from the top of the tree down."""
+    out = []
+    while skeleton.parents[joint] >= 0:
+        joint = int(skeleton.parents[joint])
+        out.append(joint)
+    return out[::-1]
+
+
+def _depth(skeleton: Skeleton, joint: int) -> int:
+    return len(ancestors(skeleton, joint))
+
+
+def is_static(motion: Motion, joint: int, tolerance: float) -> bool:
+    """Whether `joint`'s local transform stays the same over the clip."""
+    rot = motion.rotations[:, joint]
+    pos = motion.positions[:, joint]
+    return bool(np.abs(rot - rot[:1]).max() < 1e-6 and np.abs(pos - pos[:1]).max() < tolerance)
+
+
+def world_transforms(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (F, J, 3) and rotations (F, J, 3, 3) of every joint, file axes."""
+    pos, rot = forward_kinematics(
+        torch.tensor(motion.rotations), torch.tensor(motion.positions), motion.skeleton.parents, True
+    )
+    return pos.numpy(), rot.numpy()
+
+
+def rest_points(skeleton: Skeleton) -> np.ndarray:
+    """Rest-pose positions of every joint and End Site (identity rotations)."""
+    j = skeleton.num_joints
+    pos = forward_kinematics(
+        torch.eye(3, dtype=torch.float64).expand(j, 3, 3), torch.tensor(skeleton.offsets), skeleton.parents
+    ).numpy()
+    ends = [pos[joint] + offset for joint, offset in skeleton.end_sites.items()]
+    return np.concatenate([pos, np.reshape(ends, (-1, 3))])
+
+
+# ---------------------------------------------------------------- root and feet
+
+
+def find_root(motion: Motion) -> tuple[int, list[str]]:
+    """The joint that carries the root motion, and notes on how it was chosen.
+
+    From joint 0 down: while the joint is static over the clip and a joint below it has position
+    channels, move to the shallowest such joint whose translation changes (or, if none does, the
+    shallowest with position channels).
+    """
+    skeleton = motion.skeleton
+    extent = max(np.ptp(rest_points(skeleton), axis=0).max(), 1e-9)
+    tolerance = 1e-6 * extent
+    joint, notes = 0, []
+    while is_static(motion, joint, tolerance):
+        below = [j for j in subtree(skeleton, joint)[1:] if skeleton.position_order(j)]
+        if not below:
+            break
+        moving = [j for j in below if np.ptp(motion.positions[:, j], axis=0).max() > tolerance]
+        candidates = moving or below
+        best = min(candidates, key=lambda j: (_depth(skeleton, j), j))
+        notes.append(f"{skeleton.names[joint]!r} is static: root motion taken from {skeleton.names[best]!r}")
+        joint = best
+    return joint, notes
+
+
+def _leg_pair(skeleton: Skeleton, pairs: list[tuple[int, int]], root: int) -> tuple[int, int] | None:
+    """The left/right pair nearest the root inside its subtree: the hips of the two legs."""
+    body = set(subtree(skeleton, root))
+    inside = [p for p in pairs if p[0] in body and p[1] in body]
+    return min(inside, key=lambda p: (_depth(skeleton, p[0]), p[0])) if inside else None
+
+
+def _chain_end(skeleton: Skeleton, joint: int) -> list[int]:
+    """The joints from `joint` to the leaf farthest from it along the bones."""
+    best: tuple[float, list[int]] = (-1.0, [joint])
+
+    def walk(j: int, length: float, path: list[int]) -> None:
+        nonlocal best
+        children = skeleton.children(j)
+        if not children and length > best[0]:
+            best = (length, path)
+        for c in children:
+            walk(c, length + float(np.linalg.norm(skeleton.offsets[c])), path + [c])
+
+    walk(joint, 0.0, [joint])
+    return best[1]
+
+
+def find_feet(
+    skeleton: Skeleton, pairs: list[tuple[int, int]], root: int
+) -> tuple[dict[str, str], str, list[str]]:
+    """{left_heel, left_toe, right_heel, right_toe} joint names, how they were found, notes."""
+    body = subtree(skeleton, root)
+    left = {a for a, _ in pairs}
+    right = {b for _, b in pairs}
+    names = skeleton.names
+    feet: dict[str, str] = {}
+    for side, members in (("left", left), ("right", right)):
+        heels = [
+            j for j in body if j in members and _HEEL.search(names[j]) and not _NOT_FOOT.search(names[j])
+        ]
+        heels = [j for j in heels if not _TOE.search(names[j])]
+        if not heels:
+            break
+        heel = heels[0]
+        toes = [
+            j for j in subtree(skeleton, heel)[1:] if _TOE.search(names[j]) and not _NOT_FOOT.search(names[j])
+        ]
+        if not toes:  # a foot joint whose child is the toe under another name
+            toes = [c for c in skeleton.children(heel) if not _NOT_FOOT.search(names[c])]
+        feet[f"{side}_heel"] = names[heel]
+        feet[f"{side}_toe"] = names[toes[0]] if toes else names[heel]
+    if len(feet) == 4:
+        return feet, "by name", []
+    legs = _leg_pair(skeleton, pairs, root)
+    if legs is None:
+        return {}, "not found", [NO_FEET]
+    out = {}
+    for side, hip in zip(("left", "right"), legs):
+        chain = _chain_end(skeleton, hip)
+        toe, heel = chain[-1], chain[-2] if len(chain) > 1 else chain[-1]
+        out[f"{side}_heel"], out[f"{side}_toe"] = names[heel], names[toe]
+    return (
+        out,
+        "geometry (ends of the leg chains)",
+        ["feet not found by name: the ends of the leg chains are used"],
+    )
+
+
+# ---------------------------------------------------------------- axes, height and units
+
+
+def find_up(world: np.ndarray, root: int, heels: list[int]) -> tuple[np.ndarray, float]:
+    """The signed file axis from the heels to the root over the clip (world positions (F, J, 3)), and
+    how many degrees the body's own up direction is off it."""
+    rise = (world[:, root] - world[:, heels].mean(axis=1)).mean(axis=0)
+    return _snap(rise, 90.0)
+
+
+def find_forward(motion, world, world_rot, root, pairs, turn, feet) -> tuple[np.ndarray, str]:
+    """The canonical root's local axis the body faces, and how it was found.
+
+    From the rest pose when there are left/right pairs: up (heels to root) x (right - left), in the
+    root's own frame, so every clip of a skeleton gives the same axis whatever it does. Without pairs,
+    the mean walking direction of the clip in the root's frame.
+    """
+    skeleton = motion.skeleton
+    if pairs and feet:
+        rest = rest_points(skeleton)[: skeleton.num_joints]
+        heels = [skeleton.index(feet["left_heel"]), skeleton.index(feet["right_heel"])]
+        # Rest positions relative to the root are in the root's own frame (every rotation is identity).
+        up = rest[root] - rest[heels].mean(axis=0)
+        lateral = np.mean([rest[b] - rest[a] for a, b in pairs], axis=0)
+        facing = turn @ np.cross(up, lateral)
+        if np.linalg.norm(facing) > 1e-9:
+            forward, angle = _snap(facing, 30.0)
+            return forward, f"rest pose: up x (right - left) ({angle:.0f} deg off the axis)"
+    rot = turn @ world_rot[:, root] @ turn.T  # canonical world rotation of the root
+    root_path = world[:, root] @ turn.T
+    facing = np.diff(root_path, axis=0, append=root_path[-1:])
+    facing[:, 1] = 0
+    norms = np.linalg.norm(facing, axis=1, keepdims=True)
+    if norms.max() < 1e-9:
+        return np.array([0.0, 0.0, 1.0]), "assumed +z (no left/right pairs and no walking)"
+    local = np.einsum("fji,fj->fi", rot, facing / np.maximum(norms, 1e-12))
+    forward, angle = _snap(local[norms[:, 0] > 1e-9].mean(axis=0), 30.0)
+    return forward, f"walking direction ({angle:.0f} deg off the axis)"
+
+
+def body_height(rest, skeleton, root, heels, feet) -> float:
+    """Extent of the rest pose (joints and End Sites) along the feet-to-root direction: the body's
+    height whatever way the rest pose is turned, T or A pose alike. Without feet: its largest extent."""
+    points = rest[: skeleton.num_joints]
+    feet_joints = heels + [skeleton.index(feet[k]) for k in ("left_toe", "right_toe")] if feet else []
+    up = points[root] - points[feet_joints].mean(axis=0) if feet_joints else np.zeros(3)
+    if np.linalg.norm(up) < 1e-9:
+        return float(np.ptp(rest, axis=0).max())
+    return float(np.ptp(rest @ (up / np.linalg.norm(up))))
+
+
+def units_of_height(height: float) -> tuple[float, str]:
+    """Metres per unit and the unit's name for a body `height` units tall: the unit in which that is a
+    human height, else what makes it ASSUMED_HEIGHT_M."""
+    for name, metres, low, high in _UNITS:
+        if low <= height <= high:
+            return metres, name
+    return ASSUMED_HEIGHT_M / height, f"unknown (a {ASSUMED_HEIGHT_M} m body assumed)"
+
+
+# ---------------------------------------------------------------- a profile's fields
+
+
+def detect_fields(motion: Motion, overrides: dict | None = None) -> dict:
+    """Every field of `motion`'s `SkeletonProfile` but its skeleton; `overrides` (config) win."""
+    detection = _Detection(motion, overrides)
+    root = detection.root()
+    pairs = detection.mirror_pairs()
+    feet = detection.feet(pairs, root)
+    up = detection.up(root, feet)
+    forward = detection.forward(root, pairs, feet, axis_rotation(up))
+    height = detection.body_height(root, feet)
+    metres, units = detection.units(height)
+    speed, lift = detection.contact_thresholds(height)
+    detection.check_root_motion(root, up, height)
+    skeleton = motion.skeleton
+    body = subtree(skeleton, root)
+    return dict(
+        root=skeleton.names[root],
+        feet=feet,
+        mirror_pairs=tuple((skeleton.names[a], skeleton.names[b]) for a, b in pairs),
+        up=tuple(float(v) for v in up),
+        forward=tuple(float(v) for v in forward),
+        metres_per_unit=float(metres),
+        units=units,
+        body_height=float(height),
+        contact_speed=float(speed),
+        contact_height=float(lift),
+        fixed={  # every joint outside the body, as it stands at the first frame
+            skeleton.names[j]: (motion.rotations[0, j].copy(), motion.positions[0, j].copy())
+            for j in range(skeleton.num_joints)
+            if j not in body
+        },
+        found=detection.found,
+        notes=tuple(detection.notes),
+    )
+
+
+class _Detection:
+    """One clip's profile, field by field: a field the configuration gives is taken as it is, any other
+    is found from the clip. `found` says how each was found, `notes` holds anything suspicious."""
+
+    def __init__(self, motion: Motion, overrides: dict | None):
+        overrides = dict(overrides or {})
+        unknown = sorted(set(overrides) - set(OVERRIDE_FIELDS))
+        if unknown:
+            raise WalkdiffError(
+                f"profile: unknown field(s) {', '.join(unknown)}; expected {', '.join(OVERRIDE_FIELDS)}"
+            )
+        self.motion, self.skeleton, self.overrides = motion, motion.skeleton, overrides
+        self.found: dict[str, str] = {}
+        self.notes: list[str] = []
+        self.world, self.world_rot = world_transforms(motion)
+        self.rest = rest_points(motion.skeleton)
+
+    def root(self) -> int:
+        if self.overrides.get("root") is not None:
+            self.found["root"] = "config"
+            return _joint(self.skeleton, self.overrides["root"], "profile.root")
+        root, notes = find_root(self.motion)
+        self.notes += notes
+        self.found["root"] = "moving translation"
+        return root
+
+    def mirror_pairs(self) -> list[tuple[int, int]]:
+        if self.overrides.get("mirror_pairs") is not None:
+            field_name = "profile.mirror_pairs"
+            pairs = [
+                (_joint(self.skeleton, a, field_name), _joint(self.skeleton, b, field_name))
+                for a, b in self.overrides["mirror_pairs"]
+            ]
+            self.found["mirror_pairs"] = "config"
+        else:
+            pairs = find_mirror_pairs(self.skeleton)
+            self.found["mirror_pairs"] = "by name"
+        if not pairs:
+            self.notes.append("no left/right joint pairs found by name: mirroring is not possible")
+        return pairs
+
+    def feet(self, pairs: list[tuple[int, int]], root: int) -> dict[str, str]:
+        """All four feet joints when the configuration names them; else those found, with any the
+        configuration names in their place."""
+        keys = ("left_heel", "left_toe", "right_heel", "right_toe")
+        given = {
+            k: self.skeleton.names[_joint(self.skeleton, self.overrides[k], f"profile.{k}")]
+            for k in keys
+            if self.overrides.get(k)
+        }
+        if len(given) == len(keys):
+            self.found["feet"] = "config"
+            return given
+        feet, self.found["feet"], notes = find_feet(self.skeleton, pairs, root)
+        self.notes += notes
+        return feet | given
+
+    def _heels(self, feet: dict[str, str]) -> list[int]:
+        return (
+            [self.skeleton.index(feet["left_heel"]), self.skeleton.index(feet["right_heel"])] if feet else []
+        )
+
+    def up(self, root: int, feet: dict[str, str]) -> np.ndarray:
+        if self.overrides.get("up") is not None:
+            self.found["up"] = "config"
+            return _axis(self.overrides["up"], "profile.up")
+        if not feet:
+            self.found["up"] = "assumed (no feet to measure it from)"
+            self.notes.append("up axis assumed +y: without feet it cannot be measured; set profile.up")
+            return np.array([0.0, 1.0, 0.0])
+        up, angle = find_up(self.world, root, self._heels(feet))
+        self.found["up"] = f"feet to root ({angle:.0f} deg off the axis)"
+        if angle > 30:
+            self.notes.append(
+                f"the body's up direction is {angle:.0f} deg off every axis: up taken as {axis_name(up)}"
+            )
+        return up
+
+    def forward(self, root: int, pairs, feet: dict[str, str], turn: np.ndarray) -> np.ndarray:
+        if self.overrides.get("forward") is not None:
+            self.found["forward"] = "config"
+            return _axis(self.overrides["forward"], "profile.forward")
+        forward, how = find_forward(self.motion, self.world, self.world_rot, root, pairs, turn, feet)
+        self.found["forward"] = how
+        if how.startswith("assumed"):
+            self.notes.append(f"facing direction not found: {how}")
+        return forward
+
+    def body_height(self, root: int, feet: dict[str, str]) -> float:
+        if self.overrides.get("body_height") is not None:
+            self.found["body_height"] = "config"
+            return _positive(self.overrides["body_height"], "profile.body_height")
+        self.found["body_height"] = "rest pose, heel to top, stood upright"
+        return body_height(self.rest, self.skeleton, root, self._heels(feet), feet)
+
+    def units(self, height: float) -> tuple[float, str]:
+        """Metres per unit and the units' name."""
+        if self.overrides.get("units") is not None:
+            self.found["units"] = "config"
+            return _parse_units(self.overrides["units"])
+        metres, units = units_of_height(height)
+        self.found["units"] = "body height"
+        if units.startswith("unknown"):
+            self.notes.append(
+                f"body height {height:.3g} units is no human height in m, cm, mm or inches: {units}"
+            )
+        return metres, units
+
+    def contact_thresholds(self, height: float) -> tuple[float, float]:
+        """The speed (units/s) and height (units) below which a foot is planted."""
+        speed, lift = self.overrides.get("contact_speed"), self.overrides.get("contact_height")
+        speed = _positive(speed, "profile.contact_speed") if speed is not None else CONTACT_SPEED * height
+        lift = _positive(lift, "profile.contact_height") if lift is not None else CONTACT_HEIGHT * height
+        fps = self.motion.fps
+        self.found["contacts"] = (
+            "config"
+            if "contact_speed" in self.overrides or "contact_height" in self.overrides
+            else (
+                f"{CONTACT_SPEED} body heights/s ({speed / fps:.3g} units per frame at {fps:g} fps), "
+                f"{CONTACT_HEIGHT} body heights"
+            )
+        )
+        return speed, lift
+
+    def check_root_motion(self, root: int, up: np.ndarray, height: float) -> None:
+        """Notes on joints above the root that move (export cannot keep that) and on a root that stays
+        while the body moves (the root motion is likely elsewhere)."""
+        skeleton, motion, world = self.skeleton, self.motion, self.world
+        extent = float(np.ptp(self.rest, axis=0).max())
+        for j in ancestors(skeleton, root):
+            if not is_static(motion, j, 1e-6 * extent):
+                self.notes.append(
+                    f"{skeleton.names[j]!r} above the root moves: export puts it back at frame 0's pose"
+                )
+        moved = np.linalg.norm(
+            np.diff(world[:, root][:, [i for i in range(3) if not up[i]]], axis=0), axis=1
+        ).sum()
+        body = subtree(skeleton, root)
+        hips_range = np.ptp(world[:, body], axis=0).max() if motion.num_frames > 1 else 0.0
+        if moved < 1e-6 * extent and hips_range > 0.1 * height:
+            self.notes.append(
+                "the root does not move while the body does: root motion may sit on another joint"
+            )
+
+
+# ---------------------------------------------------------------- overrides
+
+
+def _joint(skeleton: Skeleton, name: str, field_name: str) -> int:
+    if name not in skeleton.names:
+        raise WalkdiffError(
+            f"{field_name}: joint {name!r} not in the skeleton ({', '.join(skeleton.names[:12])}"
+            f"{' ...' if skeleton.num_joints > 12 else ''})"
+        )
+    return skeleton.names.index(name)
+
+
+def _axis(value, field_name: str) -> np.ndarray:
+    if isinstance(value, str):
+        key = value.strip().lower()
+        key = key if key[:1] in "+-" else "+" + key
+        if key not in AXES:
+            raise WalkdiffError(
+                f"{field_name}: expected one of {', '.join(AXES)} or a 3-vector, got {value!r}"
+            )
+        return np.asarray(AXES[key], dtype=np.float64)
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,) or not np.isfinite(v).all() or np.linalg.norm(v) < 1e-9:
+        raise WalkdiffError(f"{field_name}: expected an axis name or a non-zero 3-vector, got {value!r}")
+    return v / np.linalg.norm(v)
+
+
+def _positive(value, field_name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not np.isfinite(v) or v <= 0:
+        raise WalkdiffError(f"{field_name}: expected a positive finite number, got {value!r}")
+    return v
+
+
+def _parse_units(value) -> tuple[float, str]:
+    if isinstance(value, str) and value.strip().lower() in _UNIT_NAMES:
+        return _UNIT_NAMES[value.strip().lower()], value.strip().lower()
+    metres = _positive(value, "profile.units (metres per unit, or m / cm / mm / in / ft)")
+    return metres, f"{metres:g} m per unit (config)"

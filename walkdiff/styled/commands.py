@@ -1,0 +1,199 @@
+"""`walkdiff sample` and `walkdiff transfer`: the styled generator's clips written as BVH, previews and a
+manifest or report.
+
+The clips are what `StyledGenerator` (styled/pipeline.py) returns to Python for the same seed and
+settings; this module adds the files: names from the style label, no overwriting unasked, GIF and MP4
+previews of the first seconds, and the JSON that records how they were made.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from walkdiff.common.files import check_free, output_folder, write_json
+from walkdiff.motion.bvh import write_bvh
+from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.skeleton import Motion
+from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
+from walkdiff.styled.generation import Sampling, noised_steps
+from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
+
+
+def _write_clip(
+    model,
+    path: Path,
+    motion: Motion,
+    title: str,
+    cap: PreviewCap | None,
+    others: tuple[tuple[Motion, str], ...] = (),
+) -> None:
+    """A canonical clip as BVH on the training files' skeleton; the GIF and MP4 previews (unless `cap` is
+    None) show the canonical (Y-up) clip's first seconds, only whose joint positions are computed."""
+    write_bvh(path, model.to_file(motion))
+    if cap is not None:
+        clips = [*others, (motion, title)]
+        shown = cap.frames(max(m.num_frames for m, _ in clips), motion.fps, len(clips))
+        render_gif(
+            path.with_suffix(".gif"),
+            [motion_world_positions(m.slice(0, shown)) for m, _ in clips],
+            motion.skeleton.parents,
+            motion.fps,
+            names=motion.skeleton.names,
+            titles=[t for _, t in clips],
+            cap=cap,
+            video=True,
+            marks=Marks.of(model.profile),
+        )
+
+
+def sample(
+    ckpt: str | Path,
+    out: str | Path,
+    style: str,
+    content: str = "walk",
+    num: int = 8,
+    frames: int = 300,
+    seed: int = 0,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
+    guidance: float = 1.0,
+    overlap: int | None = None,
+    blend: int | None = None,
+    ground: bool = True,
+    fix_feet: bool = False,
+    gif: bool = True,
+    preview_seconds: float = PREVIEW_SECONDS,
+    overwrite: bool = False,
+    device: str = "cpu",
+) -> dict:
+    """`walkdiff sample`: `num` clips as BVH (+ GIF previews of their first `preview_seconds`) and
+    `manifest.json` in `out`; returns the manifest."""
+    check_sample_size(num, frames)
+    sampling = Sampling(sampler, steps, eta, guidance)
+    cap = PreviewCap(preview_seconds) if gif else None
+    generator = StyledGenerator.load(ckpt, device)
+    model = generator.model
+    request = generator.request(style, content, sampling, overlap, blend)
+    out = output_folder(out)
+    names = [f"{request.label}_{content}_{i:03d}" for i in range(num)]
+    manifest_path = out / "manifest.json"
+    bvh = [out / f"{n}.bvh" for n in names]
+    previews = [p.with_suffix(suffix) for p in bvh for suffix in (".gif", ".mp4")] if gif else []
+    check_free(bvh + previews + [manifest_path], overwrite)
+
+    started = time.perf_counter()
+    clips = generator.generate(request, num, frames, seed, ground, fix_feet)
+    generated = time.perf_counter() - started
+    out.mkdir(parents=True, exist_ok=True)
+    for path, clip in zip(bvh, clips, strict=True):
+        _write_clip(model, path, clip, f"{request.label} {content}", cap)
+    manifest = {
+        "command": "sample",
+        "checkpoint": str(ckpt),
+        "settings": {
+            "style": style,
+            "content": content,
+            "num": num,
+            "frames": frames,
+            "fps": model.spec["fps"],
+            **asdict(sampling),
+            "overlap": request.overlap,
+            "blend": request.blend,
+            "ground": ground,
+            "fix_feet": fix_feet,
+            "distilled_jumps": model.jumps(sampler, steps, eta) is not None,
+        },
+        "seed": seed,
+        "files": [p.name for p in bvh],
+        "preview": None if cap is None else cap.describe(frames, model.spec["fps"]),
+        "timing": {
+            "generate_s": round(generated, 3),
+            "write_s": round(time.perf_counter() - started - generated, 3),
+            "generated_frames_per_s": round(num * frames / generated, 1),
+        },
+    }
+    write_json(manifest_path, manifest)
+    return manifest
+
+
+def transfer(
+    ckpt: str | Path,
+    input: str | Path,
+    out: str | Path,
+    style: str,
+    content: str = "walk",
+    strength: float = 0.6,
+    keep_trajectory: bool = False,
+    seed: int = 0,
+    sampler: str = "ddpm",
+    steps: int | None = None,
+    eta: float = 0.0,
+    guidance: float = 1.0,
+    overlap: int | None = None,
+    blend: int | None = None,
+    ground: bool = True,
+    fix_feet: bool = False,
+    gif: bool = True,
+    preview_seconds: float = PREVIEW_SECONDS,
+    overwrite: bool = False,
+    device: str = "cpu",
+) -> dict:
+    """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source (of their first
+    `preview_seconds`) and a JSON report."""
+    sampling = Sampling(sampler, steps, eta, guidance)
+    cap = PreviewCap(preview_seconds) if gif else None
+    generator = StyledGenerator.load(ckpt, device)
+    model = generator.model
+    request = generator.request(style, content, sampling, overlap, blend)
+    noised_steps(model, strength, sampling)  # bad strength fails before any work
+    input = Path(input)
+    motion = generator.source(input)
+    out = output_folder(out)
+    target = out / f"{input.stem}_to_{request.label}.bvh"
+    report_path = target.with_suffix(".json")
+    previews = [target.with_suffix(".gif"), target.with_suffix(".mp4")] if gif else []
+    check_free([target, report_path, *previews], overwrite)
+
+    started = time.perf_counter()
+    result = generator.restyled(request, motion, strength, keep_trajectory, seed, ground, fix_feet)
+    elapsed = time.perf_counter() - started
+    out.mkdir(parents=True, exist_ok=True)
+    _write_clip(model, target, result, request.label, cap, others=((motion, "source"),))
+    report = {
+        "command": "transfer",
+        "checkpoint": str(ckpt),
+        "input": str(input),
+        "settings": {
+            "style": style,
+            "content": content,
+            "strength": strength,
+            "keep_trajectory": keep_trajectory,
+            "frames": motion.num_frames,
+            "fps": model.spec["fps"],
+            **asdict(sampling),
+            "overlap": request.overlap,
+            "blend": request.blend,
+            "ground": ground,
+            "fix_feet": fix_feet,
+        },
+        "seed": seed,
+        "file": target.name,
+        "preview": None if cap is None else cap.describe(motion.num_frames, model.spec["fps"], panels=2),
+        "root_path_error": root_path_error(motion, result),
+        "timing": {"restyle_s": round(elapsed, 3)},
+    }
+    write_json(report_path, report)
+    return report
+
+
+def root_path_error(source: Motion, result: Motion) -> dict[str, float]:
+    """Mean horizontal distance between the two root paths, absolute and relative to the distance walked."""
+    a, b = source.root_positions[:, [0, 2]], result.root_positions[:, [0, 2]]
+    walked = float(np.linalg.norm(np.diff(a, axis=0), axis=1).sum())
+    error = float(np.linalg.norm(a - b, axis=1).mean())
+    return {"mean": error, "walked": walked, "relative": error / walked if walked > 0 else float("nan")}

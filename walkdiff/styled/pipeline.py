@@ -1,0 +1,205 @@
+"""The styled generator as one object: load a StyledMotionDiffusion once, then sample or restyle in memory.
+
+`walkdiff.load` returns it for a generator checkpoint, and `walkdiff sample` and `walkdiff transfer`
+(styled/commands.py) write what it makes, so a notebook and the commands get the same clips for the same
+seed and settings. The windows, samplers and transfer themselves are in styled/generation.py.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
+from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.footfix import fix_feet as pinned_feet
+from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
+from walkdiff.motion.resample import resample
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.take import Take
+from walkdiff.styled.generation import (
+    Sampling,
+    generate_long,
+    load_generator,
+    parse_style,
+    resolve_windows,
+    restyle,
+)
+
+
+@dataclass(frozen=True)
+class Request:
+    """What to make, checked against the model before any work: the style (an id, or mixing weights) and
+    its file-name label, the content id, the sampler and how windows are joined."""
+
+    style: torch.Tensor
+    label: str
+    content: torch.Tensor
+    sampling: Sampling
+    overlap: int
+    blend: int
+
+
+def check_sample_size(num: int, frames: int) -> None:
+    """Refuse no clips, and clips too long for memory, before the model is loaded."""
+    if num < 1:
+        raise WalkdiffError(f"--num must be at least 1, got {num}")
+    if frames >= 1:  # window_plan names a bad --frames
+        check_frames("--frames", frames, SAMPLE_BYTES_PER_FRAME, num)
+
+
+def _batch(labels: torch.Tensor, count: int) -> torch.Tensor:
+    """One style id () or mixing vector (S,), or one content id, repeated for a batch."""
+    return labels.expand(count, *labels.shape).clone()
+
+
+class StyledGenerator:
+    """A trained StyledMotionDiffusion: `sample` makes styled motion of any length, `transfer` restyles a
+    clip; both return `Take`s on the training files' skeleton and write nothing."""
+
+    def __init__(self, model):
+        self.model = model
+
+    @classmethod
+    def load(cls, ckpt: str | Path, device: str = "cpu") -> StyledGenerator:
+        return cls(load_generator(ckpt, device))
+
+    @property
+    def styles(self) -> tuple[str, ...]:
+        return tuple(self.model.spec["styles"])
+
+    @property
+    def contents(self) -> tuple[str, ...]:
+        return tuple(self.model.spec["contents"])
+
+    @property
+    def fps(self) -> float:
+        return self.model.spec["fps"]
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The training files' skeleton, which every `Take` is on."""
+        return self.model.profile.skeleton
+
+    def sample(
+        self,
+        style: str,
+        content: str = "walk",
+        num: int = 1,
+        frames: int = 300,
+        seed: int = 0,
+        sampler: str = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        guidance: float = 1.0,
+        overlap: int | None = None,
+        blend: int | None = None,
+        ground: bool = True,
+        fix_feet: bool = False,
+    ) -> list[Take]:
+        """`num` clips of `frames` frames in `style` (a name, or a mix such as 'angry:0.7,old:0.3'), drawn
+        together as `walkdiff sample` draws them: the same seed and settings give the same clips."""
+        check_sample_size(num, frames)
+        request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
+        clips = self.generate(request, num, frames, seed, ground, fix_feet)
+        return [Take.from_canonical(clip, self.model.profile) for clip in clips]
+
+    def transfer(
+        self,
+        motion: Motion | Take | str | os.PathLike,
+        style: str,
+        content: str = "walk",
+        strength: float = 0.6,
+        keep_trajectory: bool = False,
+        seed: int = 0,
+        sampler: str = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        guidance: float = 1.0,
+        overlap: int | None = None,
+        blend: int | None = None,
+        ground: bool = True,
+        fix_feet: bool = False,
+    ) -> Take:
+        """A clip (a Motion, a Take or a BVH file, on the training files' skeleton, any frame rate)
+        restyled as `walkdiff transfer` does: noised to `strength` of the schedule and denoised in
+        `style`; `keep_trajectory` keeps its root path exactly."""
+        request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
+        source = self.source(motion)
+        result = self.restyled(request, source, strength, keep_trajectory, seed, ground, fix_feet)
+        return Take.from_canonical(result, self.model.profile)
+
+    def request(
+        self, style: str, content: str, sampling: Sampling, overlap: int | None, blend: int | None
+    ) -> Request:
+        """The labels and windows of a sample or transfer, or a WalkdiffError naming what is wrong."""
+        style_label, label = parse_style(self.model, style)
+        content_id = self.model.label_ids([content], "content")[0]
+        overlap, blend = resolve_windows(self.model.spec["window"], overlap, blend)
+        return Request(style_label, label, content_id, sampling, overlap, blend)
+
+    def source(self, motion: Motion | Take | str | os.PathLike) -> Motion:
+        """A clip to restyle as the model takes it: checked to be on its skeleton, canonical, at its fps."""
+        path = None
+        if isinstance(motion, Take):
+            motion = motion.motion
+        elif isinstance(motion, str | os.PathLike):
+            path = Path(motion)
+            motion = read_bvh(path)
+        elif not isinstance(motion, Motion):
+            raise WalkdiffError(
+                f"transfer: expected a Motion, a Take or the path of a BVH file, got {type(motion).__name__}"
+            )
+        self.model.profile.check(motion.skeleton, path)
+        motion = self.model.profile.to_canonical(motion)
+        if abs(motion.fps - self.fps) > 1e-3 * self.fps:
+            motion = resample(motion, self.fps)
+        check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
+        return motion
+
+    def generate(
+        self, request: Request, num: int, frames: int, seed: int, ground: bool, fix_feet: bool
+    ) -> list[Motion]:
+        """`num` canonical clips of `frames` frames, drawn as one batch from `seed`."""
+        model = self.model
+        generator = torch.Generator(device=model.device).manual_seed(seed)
+        x = generate_long(
+            model, _batch(request.style, num), _batch(request.content, num), frames, request.sampling,
+            generator, request.overlap, request.blend,
+        )  # fmt: skip
+        return [self.finish(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
+
+    def restyled(
+        self,
+        request: Request,
+        source: Motion,
+        strength: float,
+        keep_trajectory: bool,
+        seed: int,
+        ground: bool,
+        fix_feet: bool,
+    ) -> Motion:
+        """A canonical clip (from `source`) restyled, placed where the source starts."""
+        model = self.model
+        features = model.normalizer.normalize(torch.from_numpy(encode(source, model.profile)))[None]
+        generator = torch.Generator(device=model.device).manual_seed(seed)
+        x = restyle(
+            model, features, _batch(request.style, 1), _batch(request.content, 1), strength, request.sampling,
+            generator, keep_trajectory, request.overlap, request.blend,
+        )  # fmt: skip
+        return self.finish(model.to_raw(x, ground)[0], start_pose(source, model.profile), fix_feet)
+
+    def finish(self, raw: np.ndarray, start: tuple[np.ndarray, float] | None, fix_feet: bool) -> Motion:
+        """Features in data units (F, D) -> a canonical clip, feet pinned during contacts if asked."""
+        model = self.model
+        position, heading = start if start is not None else (None, 0.0)
+        motion = decode(raw, model.skeleton, 1.0 / self.fps, position, heading)
+        if fix_feet:
+            contacts = raw[:, FeatureLayout(model.skeleton.num_joints).contacts]
+            motion = pinned_feet(motion, contacts, model.profile.contacts)
+        return motion
