@@ -16,7 +16,7 @@ _API = {
     "read_bvh": "walkdiff.motion.bvh",
     "WalkdiffError": "walkdiff.common.errors",
 }
-__all__ = ["__version__", *_API]
+__all__ = list(_API)
 
 
 def __getattr__(name: str):

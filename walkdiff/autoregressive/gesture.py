@@ -38,10 +38,11 @@ from walkdiff.common.progress import progress, step_hook
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.metrics import Jitter
+from walkdiff.models.pipeline import Pipeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.preview.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
 
@@ -93,25 +94,13 @@ def joint_positions(model, features: np.ndarray) -> np.ndarray:
     return motion_world_positions(to_motion(model, features))[:, joints]
 
 
-class GestureGenerator:
+class GestureGenerator(Pipeline):
     """A trained DiffMotion: `gesture` makes gestures for speech and returns them as `Take`s on the
     training files' skeleton, writing nothing; `walkdiff gesture` writes the same clips for the same seed."""
-
-    def __init__(self, model):
-        self.model = model
 
     @classmethod
     def load(cls, ckpt: str | Path, device: str = "cpu") -> GestureGenerator:
         return cls(load_model(ckpt, device))
-
-    @property
-    def fps(self) -> float:
-        return self.model.spec["fps"]
-
-    @property
-    def skeleton(self) -> Skeleton:
-        """The training files' skeleton, which every `Take` is on."""
-        return self.model.profile.skeleton
 
     def gesture(
         self,
@@ -132,7 +121,7 @@ class GestureGenerator:
         sound, rate = self.listen(audio, rate, samples)
         mel = log_mel(sound, rate, self.fps, self.model.spec["audio_dim"])
         clips = synthesize(self.model, mel, samples, seed, smooth, choice)
-        return [Take.from_canonical(to_motion(self.model, clip), self.model.profile) for clip in clips]
+        return [self.take(to_motion(self.model, clip)) for clip in clips]
 
     def listen(
         self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1

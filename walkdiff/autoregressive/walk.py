@@ -20,11 +20,12 @@ from walkdiff.common.files import check_free, output_folder, write_atomic, write
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
+from walkdiff.models.pipeline import Pipeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_path
 from walkdiff.motion.representation import decode
-from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
@@ -74,12 +75,9 @@ def path_in_metres(path: Polyline | str | os.PathLike | list | np.ndarray) -> tu
     return checked_polyline(path.tolist() if isinstance(path, np.ndarray) else path), None
 
 
-class PathFollower:
+class PathFollower(Pipeline):
     """A trained PathWalker: `follow` walks a style along a path and returns the walk as a `Take` on the
     training files' skeleton, writing nothing; `walkdiff walk` writes the same walk for the same seed."""
-
-    def __init__(self, model):
-        self.model = model
 
     @classmethod
     def load(cls, ckpt: str | Path, device: str = "cpu") -> PathFollower:
@@ -88,15 +86,6 @@ class PathFollower:
     @property
     def styles(self) -> tuple[str, ...]:
         return tuple(self.model.spec["styles"])
-
-    @property
-    def fps(self) -> float:
-        return self.model.spec["fps"]
-
-    @property
-    def skeleton(self) -> Skeleton:
-        """The training files' skeleton, which every `Take` is on."""
-        return self.model.profile.skeleton
 
     def follow(
         self,
@@ -113,7 +102,7 @@ class PathFollower:
         choice = SamplerChoice(sampler, steps, eta)
         metres, file_speed = path_in_metres(path)
         motion, _ = self.walk_along(metres, style, file_speed if speed is None else speed, seed, choice)
-        return Take.from_canonical(motion, self.model.profile)
+        return self.take(motion)
 
     def check(self, style: str, speed: float | None) -> int:
         """The style's index, once the style and the speed (m/s, None: the style's own) are valid."""

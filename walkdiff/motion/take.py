@@ -24,7 +24,7 @@ from walkdiff.motion.skeleton import Motion, Skeleton
 OVERWRITE = "overwrite=True"
 
 
-@dataclass(frozen=True, repr=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class Take:
     """One clip: `motion` (local rotations and translations) on the training files' skeleton, and the
     `profile` of that skeleton (axes, units, root and feet)."""

@@ -16,11 +16,12 @@ import torch
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
+from walkdiff.models.pipeline import Pipeline
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.footfix import fix_feet as pinned_feet
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
 from walkdiff.motion.resample import resample
-from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.styled.generation import (
     Sampling,
@@ -46,7 +47,8 @@ class Request:
 
 
 def check_sample_size(num: int, frames: int) -> None:
-    """Refuse no clips, and clips too long for memory, before the model is loaded."""
+    """Refuse no clips, and clips too long for memory, before any work (`walkdiff sample`: before the
+    model loads)."""
     if num < 1:
         raise WalkdiffError(f"--num must be at least 1, got {num}")
     if frames >= 1:  # window_plan names a bad --frames
@@ -58,12 +60,9 @@ def _batch(labels: torch.Tensor, count: int) -> torch.Tensor:
     return labels.expand(count, *labels.shape).clone()
 
 
-class StyledGenerator:
+class StyledGenerator(Pipeline):
     """A trained StyledMotionDiffusion: `sample` makes styled motion of any length, `transfer` restyles a
     clip; both return `Take`s on the training files' skeleton and write nothing."""
-
-    def __init__(self, model):
-        self.model = model
 
     @classmethod
     def load(cls, ckpt: str | Path, device: str = "cpu") -> StyledGenerator:
@@ -76,15 +75,6 @@ class StyledGenerator:
     @property
     def contents(self) -> tuple[str, ...]:
         return tuple(self.model.spec["contents"])
-
-    @property
-    def fps(self) -> float:
-        return self.model.spec["fps"]
-
-    @property
-    def skeleton(self) -> Skeleton:
-        """The training files' skeleton, which every `Take` is on."""
-        return self.model.profile.skeleton
 
     def sample(
         self,
@@ -107,7 +97,7 @@ class StyledGenerator:
         check_sample_size(num, frames)
         request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
         clips = self.generate(request, num, frames, seed, ground, fix_feet)
-        return [Take.from_canonical(clip, self.model.profile) for clip in clips]
+        return [self.take(clip) for clip in clips]
 
     def transfer(
         self,
@@ -132,7 +122,7 @@ class StyledGenerator:
         request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
         source = self.source(motion)
         result = self.restyled(request, source, strength, keep_trajectory, seed, ground, fix_feet)
-        return Take.from_canonical(result, self.model.profile)
+        return self.take(result)
 
     def request(
         self, style: str, content: str, sampling: Sampling, overlap: int | None, blend: int | None
@@ -172,7 +162,7 @@ class StyledGenerator:
             model, _batch(request.style, num), _batch(request.content, num), frames, request.sampling,
             generator, request.overlap, request.blend,
         )  # fmt: skip
-        return [self.finish(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
+        return [self._decoded(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
 
     def restyled(
         self,
@@ -192,9 +182,9 @@ class StyledGenerator:
             model, features, _batch(request.style, 1), _batch(request.content, 1), strength, request.sampling,
             generator, keep_trajectory, request.overlap, request.blend,
         )  # fmt: skip
-        return self.finish(model.to_raw(x, ground)[0], start_pose(source, model.profile), fix_feet)
+        return self._decoded(model.to_raw(x, ground)[0], start_pose(source, model.profile), fix_feet)
 
-    def finish(self, raw: np.ndarray, start: tuple[np.ndarray, float] | None, fix_feet: bool) -> Motion:
+    def _decoded(self, raw: np.ndarray, start: tuple[np.ndarray, float] | None, fix_feet: bool) -> Motion:
         """Features in data units (F, D) -> a canonical clip, feet pinned during contacts if asked."""
         model = self.model
         position, heading = start if start is not None else (None, 0.0)
