@@ -235,7 +235,7 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
 
 
 def test_bench_protocol_scores_walkdiff_beside_the_baselines(setup, tmp_path):
-    from walkdiff.evaluation.protocol import bench_protocol
+    from walkdiff.bench.protocol import bench_protocol
 
     torch.manual_seed(0)
     dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")

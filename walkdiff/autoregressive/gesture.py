@@ -1,4 +1,4 @@
-"""Speech-driven gestures with a trained DiffMotion: synthesis, smoothing, metrics, commands, a callback.
+"""Speech-driven gestures with a trained DiffMotion: synthesis, smoothing, metrics and commands.
 
 Metrics (all on world positions of the modelled joints, root and other joints in the neutral pose, so
 generated and real motion are compared on the same footing):

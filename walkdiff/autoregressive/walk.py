@@ -1,4 +1,4 @@
-"""Walking that follows a path (`walkdiff walk`) and how well it does (`walkdiff bench walk`).
+"""Walking that follows a path (`walkdiff walk`, `PathFollower`) and how well it does (`bench walk` measures).
 
 Path-following error: the mean distance of the generated root (x, z) from the path polyline over all
 frames, as a percentage of the distance walked (the length of the path covered). Style accuracy: the

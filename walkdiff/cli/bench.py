@@ -288,7 +288,7 @@ def add_protocol(bench) -> None:
 
 
 def run_protocol(args: argparse.Namespace) -> None:
-    from walkdiff.evaluation.protocol import bench_protocol
+    from walkdiff.bench.protocol import bench_protocol
 
     bench_protocol(
         args.out, args.ckpt, args.evaluator, args.student, strengths(args.strengths), args.samples,
