@@ -283,3 +283,37 @@ def test_documented_python_runs_as_written(doc, code, documented_files, empty_fo
             assert back.num_frames == take.num_frames and back.skeleton.same_hierarchy(take.skeleton)
         else:
             assert len(pygltflib.GLTF2().load(str(path)).animations) == 1
+
+
+def pickled_globals(ckpt: Path) -> set[str]:
+    """The classes and functions a checkpoint's pickle would import when loaded."""
+    import pickletools
+    import zipfile
+
+    with zipfile.ZipFile(ckpt) as archive:
+        data = archive.read(next(n for n in archive.namelist() if n.endswith("data.pkl")))
+    found, strings = set(), []
+    for op, arg, _ in pickletools.genops(data):
+        if op.name == "GLOBAL":
+            found.add(arg.replace(" ", "."))
+        elif op.name == "STACK_GLOBAL":
+            found.add(".".join(strings[-2:]))
+        if isinstance(arg, str):
+            strings.append(arg)
+    return found
+
+
+def test_checkpoints_name_their_model_by_a_path_that_stays_importable(styled, walker, gestures):
+    """Moving modules must not break checkpoints users already have: a checkpoint pickles no walkdiff
+    object (only tensors and plain data), and the model class it records by name still imports."""
+    import importlib
+
+    from walkdiff.common.checkpoints import KINDS, checkpoint_class
+
+    for ckpt in (styled, walker, gestures[0]):
+        assert not {name for name in pickled_globals(ckpt) if name.startswith("walkdiff")}, ckpt
+        recorded = checkpoint_class(ckpt)
+        assert recorded in KINDS
+    for class_path in KINDS:
+        module, name = class_path.rsplit(".", 1)
+        assert isinstance(getattr(importlib.import_module(module), name), type), class_path
