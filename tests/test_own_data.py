@@ -196,7 +196,7 @@ def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatc
     """DiffMotion on BVH + WAV takes of another skeleton: Unreal names, static root, metres, Z-up."""
     import soundfile
     import torch
-    from test_diffmotion import TINY
+    from tiny import GESTURES
 
     from walkdiff.data.speech import SpeechDataModule, read_wav
     from walkdiff.models.diffmotion import DiffMotion
@@ -214,7 +214,7 @@ def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatc
     assert dm.profile.root == record.names["Hips"] and dm.profile.units == "m"
     assert np.allclose(dm.profile.up, [0, 0, 1])
     torch.manual_seed(0)
-    model = DiffMotion(dm.spec, **TINY)
+    model = DiffMotion(dm.spec, **GESTURES)
     trainer = synthetic.quiet_trainer(max_steps=2)
     trainer.fit(model, dm)
     ckpt = tmp_path / "gesture.ckpt"
@@ -234,7 +234,7 @@ def test_gesture_model_on_a_disguised_zeggs_take(zeggs_dir, tmp_path, monkeypatc
 
 def test_path_walker_on_disguised_xia_walks_a_path_in_metres(disguised_folder, tmp_path, monkeypatch):
     import torch
-    from test_walk import TINY
+    from tiny import WALKER
 
     from walkdiff.models.path_walker import PathWalker
 
@@ -244,7 +244,7 @@ def test_path_walker_on_disguised_xia_walks_a_path_in_metres(disguised_folder, t
         batch_size=8, preprocess_workers=1,
     )  # fmt: skip
     torch.manual_seed(0)
-    model = PathWalker(dm.spec, **TINY)
+    model = PathWalker(dm.spec, **WALKER)
     trainer = synthetic.quiet_trainer(max_steps=2)
     trainer.fit(model, dm)
     ckpt = tmp_path / "walker.ckpt"
