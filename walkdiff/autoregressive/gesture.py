@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from scipy.signal import argrelmin
 
+from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder, write_json
 from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
@@ -423,7 +424,7 @@ def evaluate_gesture(
         raise WalkdiffError(f"--pck-threshold must be a positive distance in metres, got {pck_threshold}")
     model = load_model(ckpt)
     pck_units = pck_threshold / model.profile.metres_per_unit
-    checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
+    checkpoint = read_checkpoint(ckpt, "gesture model", mmap=False)
     settings = dict(checkpoint.get("datamodule_hyper_parameters") or {})
     settings |= {"root": root} if root is not None else {}
     accepted = inspect.signature(SpeechDataModule).parameters  # LightningCLI adds _class_path

@@ -6,6 +6,7 @@ import torch
 
 from walkdiff.bench.measure import machine, report
 from walkdiff.bench.quality import QualityBench, with_feet_fixed, with_ratios
+from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.errors import WalkdiffError
 
 
@@ -30,7 +31,7 @@ def bench_distill(
     from walkdiff.styled.generation import load_generator
 
     teacher_model, student_model = load_generator(teacher), load_generator(student)
-    record = torch.load(student, map_location="cpu", weights_only=False, mmap=True).get("distilled")
+    record = read_checkpoint(student, "student").get("distilled")
     if record is None:
         raise WalkdiffError("not a distilled checkpoint (made by `walkdiff distill`)", path=student)
     carried, given = student_model.teacher.state_dict(), teacher_model.ema.module.state_dict()

@@ -9,6 +9,8 @@ from dataclasses import replace
 
 import torch
 
+from walkdiff.common.checkpoints import read_checkpoint
+
 
 class QualityBench:
     """FMD and recognition of generated windows against the real test windows of a generator's data
@@ -21,7 +23,7 @@ class QualityBench:
         from walkdiff.data.datamodule import MotionDataModule, data_settings
         from walkdiff.evaluation.scorer import MotionScorer, load_evaluator, window_set
 
-        checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)
+        checkpoint = read_checkpoint(ckpt, "generator")
         self.datamodule = MotionDataModule(**data_settings(checkpoint))
         spec = model.spec
         self.scorer = MotionScorer(load_evaluator(evaluator), model.skeleton, spec["fps"])

@@ -14,9 +14,17 @@ from torchmetrics.classification import MulticlassConfusionMatrix
 
 from walkdiff.callbacks.checkpoints import mlflow_logger
 from walkdiff.callbacks.tracking import checkpoint_tags
+from walkdiff.common.checkpoints import expect_class
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.tracking import log_file
-from walkdiff.evaluation.scorer import MotionScorer, WindowSet, generate_windows, load_evaluator, window_set
+from walkdiff.evaluation.scorer import (
+    EVALUATORS,
+    MotionScorer,
+    WindowSet,
+    generate_windows,
+    load_evaluator,
+    window_set,
+)
 
 
 class MotionMetrics(L.Callback):
@@ -67,12 +75,14 @@ class MotionMetrics(L.Callback):
         self.history: list[dict] = []
 
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if not Path(self.evaluator_ckpt).is_file():  # fail now, not after the first epochs
+        # Fail now, not after the first epochs: a missing, unsafe or wrong kind of evaluator file.
+        if not Path(self.evaluator_ckpt).exists():
             raise WalkdiffError(
                 "evaluator checkpoint not found; train it first with `make evaluator` "
                 "(walkdiff fit --config conf/evaluator_xia.yaml)",
                 path=self.evaluator_ckpt,
             )
+        expect_class(self.evaluator_ckpt, EVALUATORS, "the metrics' evaluator")
         logger = mlflow_logger(trainer)
         if logger is not None and trainer.is_global_zero:  # which evaluator judged this run, and its run
             for key, value in checkpoint_tags(self.evaluator_ckpt, "evaluator").items():

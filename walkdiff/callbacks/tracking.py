@@ -23,6 +23,7 @@ from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.utilities.rank_zero import rank_zero_only
 
 from walkdiff.callbacks.checkpoints import RunCheckpoint, mlflow_logger
+from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.tracking import close_dead_runs, tag_process
 
 EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
@@ -138,11 +139,9 @@ def log_checkpoints(logger, callbacks) -> None:
 def checkpoint_tags(path: str | Path, role: str) -> dict[str, str]:
     """Tags naming a checkpoint a run uses (`walkdiff.<role>_checkpoint`) and, when it was written by a
     `walkdiff fit` tracked in MLflow, that run (`walkdiff.<role>_run`: experiment id / run id)."""
-    import torch
-
     path = Path(path)
     tags = {f"walkdiff.{role}_checkpoint": str(path.resolve())}
-    run = torch.load(path, map_location="cpu", weights_only=False).get(RUN_KEY)
+    run = read_checkpoint(path, f"{role} model").get(RUN_KEY)
     if run:
         tags[f"walkdiff.{role}_run"] = f"{run['experiment_id']}/{run['run_id']}"
     return tags

@@ -7,13 +7,13 @@ import sys
 from pathlib import Path
 
 from walkdiff.callbacks.fit import lightning_cli
-from walkdiff.cli import autoregressive, bench, distill, evaluate, files, generate
+from walkdiff.cli import autoregressive, bench, distill, evaluate, files, generate, model_files
 from walkdiff.common.arguments import Parser
 from walkdiff.common.errors import WalkdiffError
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
 # In the order `walkdiff --help` lists their commands; each sets `run`, the handler of what it parsed.
-FAMILIES = (files, evaluate, generate, autoregressive, distill, bench)
+FAMILIES = (files, evaluate, generate, autoregressive, distill, model_files, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -175,8 +175,7 @@ def _generator_and_data(evaluator, ckpt, scorer_model, contents: str | None, dev
     from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
     settings = data_settings(read_checkpoint(ckpt, "generator", mmap=False), contents=contents)
-    model = StyledMotionDiffusion.load_from_checkpoint(ckpt, map_location="cpu", weights_only=False)
-    model = model.to(device).eval()
+    model = StyledMotionDiffusion.from_trained(ckpt, "generator", device)
     for labels in ("styles", "contents"):
         if list(model.spec[labels]) != list(scorer_model.spec[labels]):
             raise WalkdiffError(

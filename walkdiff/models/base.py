@@ -62,14 +62,14 @@ class MotionModule(L.LightningModule):
         """
         import torch
 
-        from walkdiff.common.checkpoints import expect_class
+        from walkdiff.common.checkpoints import expect_class, loadable
 
         if str(device).startswith("cuda") and not torch.cuda.is_available():
             raise WalkdiffError(f"--device {device}: this torch build sees no CUDA GPU; use --device cpu")
         path = Path(path)
         expect_class(path, f"{cls.__module__}.{cls.__qualname__}", what)
         try:
-            model = cls.load_from_checkpoint(path, map_location="cpu", weights_only=False)
+            model = cls.load_from_checkpoint(loadable(path), map_location="cpu", weights_only=True)
         except (KeyError, RuntimeError, TypeError) as error:
             raise WalkdiffError(
                 f"not a {what} checkpoint ({type(error).__name__}: {error})", path=path

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import torch
 
+from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import write_atomic
 from walkdiff.common.progress import progress
@@ -199,7 +200,7 @@ def distill(
     if teacher_steps is not None and not 1 <= teacher_steps <= total:
         raise WalkdiffError(f"--teacher-steps: expected a number in [1, {total}], got {teacher_steps}")
     plan = student_steps(diffusion, counts, teacher_steps)
-    checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
+    checkpoint = read_checkpoint(ckpt, "teacher", mmap=False)
     datamodule = MotionDataModule(**data_settings(checkpoint))
     datamodule.setup("fit")
 
