@@ -103,3 +103,16 @@ class CopyAtEpochStart(L.Callback):
     def on_train_epoch_start(self, trainer, pl_module):
         if trainer.current_epoch == self.epoch and self.source.exists():
             self.target.write_bytes(self.source.read_bytes())
+
+
+class LogEveryOtherEpoch(L.Callback):
+    """Logs `key` (10 - epoch: better each time) after the validation of every `every`-th epoch only, as
+    MotionMetrics logs metrics/fmd; the other validations do not log it."""
+
+    def __init__(self, key: str, every: int = 2):
+        self.key, self.every = key, every
+
+    def on_validation_epoch_end(self, trainer, pl_module):
+        epoch = trainer.current_epoch
+        if not trainer.sanity_checking and (epoch + 1) % self.every == 0:
+            pl_module.log(self.key, 10.0 - epoch, on_step=False, on_epoch=True)

@@ -20,10 +20,18 @@ def files(tmp_path, monkeypatch):
     (tmp_path / "empty.ckpt").write_bytes(b"")
     (tmp_path / "garbage.ckpt").write_bytes(b"PK\x03\x04 not really a checkpoint")
     (tmp_path / "text.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")
+    point = "ROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 3 Xposition Yposition Zposition\n}\n"
+    (tmp_path / "point.bvh").write_text(
+        f"HIERARCHY\n{point}MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0\n1 0 0\n"
+    )
     (tmp_path / "file").write_text("a file where a folder is expected")
     (tmp_path / "noise.wav").write_bytes(b"RIFF....WAVEfmt ")
     (tmp_path / "path.json").write_text("[[0, 0], [1e400, 0]]")
     (tmp_path / "folder").mkdir()
+    (tmp_path / "passwd").write_text("root:x:0:0:root:/root:/bin/bash\n")
+    (tmp_path / "transfer.csv").write_text("file,source,style\ntext.bvh,text.bvh,old\n")
+    (tmp_path / "outside.csv").write_text("file,source,style\ntext.bvh,../text.bvh,old\n")
+    (tmp_path / "twice.csv").write_text("file,source,style\ntext.bvh,text.bvh,old\ntext.bvh,text.bvh,sexy\n")
     return tmp_path
 
 
@@ -52,6 +60,19 @@ CASES = {
         ["score", "nowhere", "--evaluator", "garbage.ckpt", "--out", "o"],
         ["nowhere"],
     ),
+    "score a folder and a manifest": (
+        ["score", "folder", "--transfer", "transfer.csv", "--evaluator", "e", "--out", "o"],
+        ["--transfer", "not both"],
+    ),
+    "score a manifest naming a file outside its folder": (
+        ["score", "--transfer", "outside.csv", "--evaluator", "e", "--out", "o"],
+        ["outside.csv:2: source '../text.bvh'", "outside the manifest's folder", "--allow-outside"],
+    ),
+    "score a manifest naming an output twice": (
+        ["score", "--transfer", "twice.csv", "--evaluator", "e", "--out", "o"],
+        ["twice.csv:3", "output of line 2 too"],
+    ),
+    "inspect a file that is not BVH": (["inspect", "passwd"], ["passwd:1: not a BVH file"]),
     "score into a file": (["score", "folder", "--evaluator", "garbage.ckpt", "--out", "file"], ["file"]),
     "score a bad stride": (
         ["score", "folder", "--evaluator", "e", "--out", "o", "--stride", "-2"],
@@ -129,6 +150,10 @@ CASES = {
     "an unknown command": (["train"], ["train", "choose from"]),
     "view a missing file": (["view", "missing.bvh", "--port", "0"], ["missing.bvh"]),
     "view a truncated BVH": (["view", "text.bvh", "--port", "0"], ["text.bvh"]),
+    # One joint and no end site: a skeleton of no height, whose units cannot be told (issue 33).
+    "inspect a one-point skeleton": (["inspect", "point.bvh"], ["point.bvh", "body_height"]),
+    "convert a one-point skeleton": (["convert", "point.bvh", "o.glb"], ["point.bvh", "body_height"]),
+    "view a one-point skeleton": (["view", "point.bvh", "--port", "0"], ["point.bvh", "body_height"]),
     "an unknown option": (["sample", "--ckpt", "g", "--out", "o", *STYLE, "--colour", "red"], ["--colour"]),
 }
 for command in CHECKPOINT_USERS:
@@ -149,6 +174,14 @@ def test_bad_input_is_one_line_naming_it(files, capsys, name):
     for word in words:
         assert word in err[-1], (word, err[-1])
     assert sorted(p.name for p in files.rglob("*")) == before, "nothing written"
+
+
+def test_a_file_that_is_not_motion_is_never_echoed(files, capsys):
+    """Issue 33: an error quoted the first line of any file given as motion (/etc/passwd)."""
+    for args in (["inspect", "passwd"], ["convert", "passwd", "o.bvh"], ["view", "passwd", "--port", "0"]):
+        assert main(args) == 1
+        err = capsys.readouterr().err
+        assert "passwd:1: not a BVH file" in err and "root" not in err, err
 
 
 def test_every_command_is_covered():

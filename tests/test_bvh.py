@@ -355,6 +355,21 @@ def test_bad_text_names_file_line_and_expectation(tmp_path, case):
         assert phrase in message, message
 
 
+def test_a_file_that_is_not_bvh_is_never_quoted(tmp_path):
+    """A path mistyped onto another file (here a password file) names the file, never its content; once
+    a file starts like a BVH, a bad token is quoted, cut to a few characters."""
+    path = tmp_path / "passwd"
+    path.write_text("\nroot:x:0:0:root:/root:/bin/bash\ndaemon:x:1:1:daemon:/usr/sbin:/usr/sbin/nologin\n")
+    with pytest.raises(WalkdiffError) as error:
+        read_bvh(path)
+    assert str(error.value) == f"{path}:2: not a BVH file: expected one starting with HIERARCHY"
+    secret = "x" * 40
+    path.write_text(edited(l8=f"\t\tOFFSET 0 {secret} 0"))
+    with pytest.raises(WalkdiffError) as error:
+        read_bvh(path)
+    assert f"found '{'x' * 23}…'" in str(error.value) and secret not in str(error.value)
+
+
 def test_binary_file_with_nul_bytes(tmp_path):
     path = tmp_path / "binary.bvh"
     path.write_bytes(b"HIERARCHY\nROOT Hips\n\x00\x01\x02")

@@ -124,6 +124,24 @@ def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path, capsy
     assert "--evaluator is required" in capsys.readouterr().err
 
 
+def test_evaluate_refuses_a_num_too_small_before_any_window_is_made(setup, tmp_path, capsys, monkeypatch):
+    """Issue 33: --num 4 failed after a minute of generating, in multimodality. It is checked first."""
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("windows were made before --num was checked")
+
+    monkeypatch.setattr("walkdiff.evaluation.evaluate.MotionScorer.embed", no_work)
+    monkeypatch.setattr("walkdiff.evaluation.evaluate.generate_windows", no_work)
+    args = ["evaluate", "--evaluator", str(setup["ckpt"]), "--real-only", "--root", str(setup["root"])]
+    assert main(args + ["--num", "15", "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        "walkdiff: error: --num 15 is too small: multimodality pairs windows of one style, and 15 windows "
+        "give some of the 8 styles fewer than 2; the smallest --num that works is 16"
+    )
+    assert not (tmp_path / "o").exists()
+
+
 def test_evaluate_needs_a_generator_unless_real_only(setup, tmp_path, capsys):
     assert main(["evaluate", "--evaluator", str(setup["ckpt"]), "--out", str(tmp_path)]) == 1
     assert "--ckpt" in capsys.readouterr().err
@@ -260,5 +278,12 @@ def test_bench_protocol_scores_walkdiff_beside_the_baselines(setup, tmp_path):
     for row in result["transfer"].values():
         assert 0 <= row["target_style_acc"]["value"] <= 1 and row["fmd"]["value"] >= 0
     assert set(result["verdicts"]) == {"transfer 0.5", "transfer 0.5, keep trajectory"}
+    for verdict in result["verdicts"].values():  # at least 5 sources per target style, or no verdict
+        few = min(verdict["sources_per_style"].values()) < 5
+        assert (verdict["verdict"] == "inconclusive") if few else verdict["verdict"] in ("yes", "no")
+    # Which real test clip stood in for each source and target style.
+    stand_ins = result["baseline_real_clips"]
+    assert len(stand_ins) == result["transfer_pairs"]
+    assert {s["real"].split("_")[0] for s in stand_ins} == {s["style"] for s in stand_ins}
     table = (tmp_path / "protocol" / "protocol.md").read_text()
     assert "## Style transfer" in table and "| baseline: real target-style clips |" in table

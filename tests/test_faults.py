@@ -1,7 +1,9 @@
-"""Faults a user meets: two writers on one output, a writer killed mid-write, a corrupted cache."""
+"""Faults a user meets: two writers on one output, a writer killed mid-write, a full disk or a folder not
+writable, a corrupted cache."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
@@ -14,9 +16,10 @@ import lightning as L
 import numpy as np
 import pytest
 import synthetic
-from PIL import Image
 
 from walkdiff.cli.main import main
+from walkdiff.common import files
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import clean_temporaries, output_lock, temporary_file, write_text
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
@@ -86,38 +89,108 @@ def test_a_second_writer_is_refused_with_the_holders_pid(ckpt, tmp_path, capsys)
     assert not lock.exists()
 
 
-def test_a_killed_writer_leaves_no_partial_file_and_its_temporaries_go_with_the_next_run(ckpt, tmp_path):
+def test_a_killed_writer_leaves_no_partial_set_and_its_temporaries_go_with_the_next_run(ckpt, tmp_path):
     out = tmp_path / "out"
-    writer = _walkdiff(*SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "400", "--num", "4")
-    _wait_for(lambda: any(out.glob("*.bvh")), writer, "first clip")
+    quick = [*SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "40", "--num", "2"]
+    assert main([*quick, "--no-gif"]) == 0
+    earlier = {p.name: p.read_bytes() for p in out.iterdir()}
+    writer = _walkdiff(*SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "400", "--num", "4",
+                       "--overwrite")  # fmt: skip
+    # Its first clip is written, under a temporary name until the whole set is.
+    _wait_for(lambda: any(out.glob(".angry_walk_000.bvh.*.tmp")), writer, "first clip")
     writer.send_signal(signal.SIGKILL)
     writer.communicate(timeout=30)
-    # Whatever has a final name is whole: every BVH reads in full, every GIF has all its frames.
-    for bvh in out.glob("*.bvh"):
-        assert read_bvh(bvh).num_frames == 400
-    for gif in out.glob("*.gif"):
-        with Image.open(gif) as image:
-            assert image.n_frames > 1
-    assert not (out / "manifest.json").exists()
-    # A temporary of a dead writer, as a kill during a write leaves it (whether or not this kill did).
-    fd, planted = temporary_file(out / "angry_walk_000.bvh")
-    os.close(fd)
-    dead = planted.with_name(planted.name.replace(f".{os.getpid()}.", f".{_dead_pid()}."))
-    planted.rename(dead)
+    # Nothing of the killed run has a final name: the set it was replacing is whole and unchanged.
+    assert {p.name: p.read_bytes() for p in out.iterdir() if not p.name.endswith(".tmp")} == earlier
+    left = [p.name for p in out.glob(".*.tmp")]
+    assert left and all(f".{writer.pid}." in name for name in left)
 
-    # The next write cleans up, even one that then refuses to replace the killed run's files unasked.
-    again = _walkdiff(*SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "40", "--num", "2")
+    # The next write cleans up, even one that then refuses to replace the earlier files unasked.
+    again = _walkdiff(*quick)
     _, stderr = again.communicate(timeout=300)
     assert again.returncode == 1 and "would overwrite" in stderr
-    assert "temporary file(s) left in" in stderr and dead.name in stderr
+    assert "temporary file(s) left in" in stderr and any(name in stderr for name in left)
     assert not list(out.rglob("*.tmp")) and not list(tmp_path.glob(".*.lock"))
-    again = _walkdiff(
-        *SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "40", "--num", "2", "--overwrite"
-    )
+    again = _walkdiff(*quick, "--overwrite")
     _, stderr = again.communicate(timeout=300)
     assert again.returncode == 0, stderr
     assert not list(out.rglob("*.tmp")) and not list(tmp_path.glob(".*.lock"))
     assert json.loads((out / "manifest.json").read_text())["settings"]["num"] == 2
+    for bvh in out.glob("*.bvh"):
+        assert read_bvh(bvh).num_frames == 40
+
+
+def _failing(monkeypatch, name: str, error: OSError) -> None:
+    """Writes of the output `name` fail with `error` (a full disk: the bytes go to /dev/full; a folder
+    not writable: no temporary file can be made), as the system would fail them."""
+    real = files.temporary_file
+
+    def temporary(path):
+        if Path(path).name != name:
+            return real(path)
+        if error.errno == errno.ENOSPC:
+            fd, temp = real(path)
+            os.close(fd)
+            return os.open("/dev/full", os.O_WRONLY), temp
+        raise error
+
+    monkeypatch.setattr(files, "temporary_file", temporary)
+
+
+@pytest.mark.parametrize(
+    "error, cause",
+    [
+        (OSError(errno.ENOSPC, "No space left on device"), "no space left on device"),
+        (PermissionError(errno.EACCES, "Permission denied"), "permission denied"),
+    ],
+)
+def test_a_failed_write_names_the_file_and_leaves_no_partial_set(
+    ckpt, tmp_path, capsys, monkeypatch, error, cause
+):
+    """A full disk or a folder not writable while `sample` writes its second clip: one line naming that
+    file and the cause; no clip of the run is left without its manifest, and an earlier set it was asked
+    to replace stays whole."""
+    out = tmp_path / "out"
+    args = [*SAMPLE, "--ckpt", str(ckpt), "--frames", "30", "--num", "2", "--preview-seconds", "0.5"]
+    assert main([*args, "--out", str(out)]) == 0
+    earlier = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    _failing(monkeypatch, "angry_walk_001.bvh", error)
+    for folder, more in ((out, ["--overwrite", "--seed", "4"]), (tmp_path / "new" / "out", [])):
+        assert main([*args, "--out", str(folder), *more]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1] == f"walkdiff: error: {folder / 'angry_walk_001.bvh'}: cannot write ({cause})", err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == earlier, "the earlier set, whole"
+    assert not (tmp_path / "new").exists(), "no folder left behind, empty or with part of a set"
+
+
+def test_an_output_set_is_written_all_or_none(tmp_path):
+    (tmp_path / "kept.txt").write_text("before")
+    with pytest.raises(WalkdiffError), files.output_set(tmp_path / "a" / "b"):
+        files.write_text(tmp_path / "a" / "b" / "one.txt", "1")
+        files.write_text(tmp_path / "kept.txt", "after")
+        assert not (tmp_path / "a" / "b" / "one.txt").exists(), "named only once all are written"
+        with files.output_set(tmp_path / "c"):  # a command inside another's set joins it
+            files.write_text(tmp_path / "a" / "b" / "two.txt", "2")
+        assert not (tmp_path / "a" / "b" / "two.txt").exists()
+        raise WalkdiffError("bad input midway")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["kept.txt"]  # no folder, no temporary
+    assert (tmp_path / "kept.txt").read_text() == "before"
+    with files.output_set(tmp_path / "a"):
+        files.write_text(tmp_path / "a" / "one.txt", "1")
+        files.write_text(tmp_path / "a" / "one.txt", "2")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "kept.txt", "one.txt"]
+    assert (tmp_path / "a" / "one.txt").read_text() == "2"
+
+
+def test_a_failed_file_operation_outside_the_writers_is_one_line(tmp_path, capsys, monkeypatch):
+    def denied(args):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / "somewhere"))
+
+    monkeypatch.setattr("walkdiff.cli.main.run_command", denied)
+    assert main(["inspect", "x.bvh"]) == 1
+    err = capsys.readouterr().err
+    assert err == f"walkdiff: error: {tmp_path / 'somewhere'}: permission denied\n"
 
 
 def test_a_live_writers_temporaries_are_kept(tmp_path):

@@ -123,6 +123,40 @@ def test_clips_are_every_bvh_below_the_folder_by_relative_path(folder, takes, tm
     assert error.value.path == str(empty)
 
 
+def test_links_may_point_inside_the_folder_but_not_out_of_it(folder, tmp_path, capsys):
+    """Issue 33: a link out of the folder made scan and fit open (and quote) any file the user can read."""
+    from walkdiff.cli.main import main
+
+    (folder / "aliases").mkdir()
+    (folder / "aliases" / "same.bvh").symlink_to("../take_008.bvh")  # inside: a clip like any other
+    assert "aliases/same" in [c.name for c in FolderSource(folder).list_clips()]
+
+    secret = tmp_path / "outside" / "secret.txt"
+    secret.parent.mkdir()
+    secret.write_text("token,hunter2\n")
+    shutil.copyfile(folder / "take_008.bvh", secret.parent / "walk.bvh")
+    for link, target in [("zz_out.bvh", secret.parent / "walk.bvh"), ("zz_secret.bvh", secret)]:
+        (folder / link).symlink_to(target)
+        with pytest.raises(WalkdiffError, match="symbolic link to .*outside the dataset folder") as error:
+            FolderSource(folder).list_clips()
+        assert error.value.path == str(folder / link) and str(target) in str(error.value)
+        assert main(["data", "scan", str(folder)]) == 1
+        err = capsys.readouterr().err
+        assert f"{folder / link}: a clip is a symbolic link to {target}" in err and "hunter2" not in err
+        (folder / link).unlink()
+
+    (folder / "labels.csv").symlink_to(secret)  # found without being named, or named relative
+    for labels in (None, "labels.csv", str(folder / "labels.csv")):
+        with pytest.raises(WalkdiffError, match="the manifest is a symbolic link to") as error:
+            FolderSource(folder, labels=labels).list_clips()
+        assert "hunter2" not in str(error.value) and error.value.path == str(folder / "labels.csv")
+    (folder / "labels.csv").unlink()
+    # A manifest the user names outside the folder is read: the user chose that file.
+    write_csv(tmp_path / "outside" / "labels.csv", [["file", "style"], ["take_008", "x"]])
+    source = FolderSource(folder, labels=str(tmp_path / "outside" / "labels.csv"), default_style="y")
+    assert source.styles == ("x", "y")
+
+
 # ---------------------------------------------------------------- labels
 
 
@@ -358,6 +392,63 @@ def test_split_counts_per_label_pair(takes, tmp_path):
 def test_fractions_are_validated(takes, val, test, option):
     with pytest.raises(WalkdiffError, match=re.escape(option)):
         FolderSource(takes[0], val_fraction=val, test_fraction=test)
+
+
+def test_a_folder_without_val_or_test_clips_says_so_and_how_to_fix_it(xia_dir, tmp_path, monkeypatch, capsys):
+    """Issue 33: fit of a one-clip folder said "use a shorter data.window"; its val and test splits are
+    empty, which no window fixes."""
+    import probes
+
+    from walkdiff.cli.main import main
+
+    folder = tmp_path / "one"
+    folder.mkdir()
+    shutil.copyfile(xia_dir / "angry_01_000.bvh", folder / "take.bvh")
+    advice = "clips are split per (style, content) label pair, and a pair needs 2 clips to give one to test"
+    assert f"no val and no test clips, which training needs: {advice}" in scan(folder)
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+    config = tmp_path / "one.yaml"
+    config.write_text(probes.tiny_fit_config(folder, "one", epochs=1, batches=1, callbacks=[]))
+    data = ["--data.init_args.dataset", "folder", "--data.init_args.contents", "all"]
+    assert main(["fit", "--config", str(config), *data]) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(
+        f"walkdiff: error: {folder}: no val and no test clip: the dataset has 1 clip, split 1 train, 0 val, "
+        f"0 test; {advice}"
+    )
+    assert "add clips, or give clips the split val or test in a labels manifest's split column" in err
+    assert "data.window" not in err and not list(tmp_path.glob("checkpoints/one/*/*.ckpt"))
+
+    # The advice names the option that emptied a split.
+    source = FolderSource(folder, val_fraction=0, test_fraction=0)
+    assert source.empty_split_advice(["val", "test"]).startswith(
+        "data.val_fraction and data.test_fraction are 0: set them above 0"
+    )
+    write_csv(folder / "labels.csv", [["file", "split"], ["take", "test"]])
+    assert "split column leaves no clip to train on" in FolderSource(folder).empty_split_advice(["train"])
+
+
+def test_a_split_whose_clips_were_all_skipped_says_so(xia_dir, tmp_path):
+    from walkdiff.data.datamodule import MotionDataModule
+
+    folder = tmp_path / "three"
+    folder.mkdir()
+    # One label pair of 3: d tests, c validates, b trains (and, read first, gives the profile).
+    for name in ("b", "c", "d"):
+        shutil.copyfile(xia_dir / "angry_01_000.bvh", folder / f"{name}.bvh")
+    source = FolderSource(folder)
+    (val,) = source.split_clips(source.list_clips(), all_contents(source))["val"]
+    val.path.write_text("HIERARCHY\n")
+    options = dict(dataset="folder", root=str(folder), contents="all", cache_dir=str(tmp_path / "cache"))
+    dm = MotionDataModule(**options, on_error="skip", preprocess_workers=1)
+    with pytest.warns(UserWarning, match=val.name), pytest.raises(WalkdiffError) as error:
+        dm.setup()
+    assert str(error.value) == (
+        f"{folder}: the val split has no readable clip: data.on_error skip left out all its 1 (see the "
+        "warning above)"
+    )
 
 
 def test_open_source_gives_the_folder_source(takes, tmp_path):

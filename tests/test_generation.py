@@ -374,7 +374,7 @@ def test_bad_checkpoints_are_named_with_what_is_wrong(ckpt, tmp_path, capsys, co
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        (["--guidance", "nan"], "--guidance: expected a finite number in [0, inf], got 'nan'"),
+        (["--guidance", "nan"], "--guidance: expected a finite number in [0, 100], got 'nan'"),
         (["--sampler", "ddpm", "--steps", "5"], "--steps applies to ddim and dpmpp"),
         (["--sampler", "ddim", "--eta", "inf"], "--eta: expected a finite number in [0, 1], got 'inf'"),
         (["--eta", "0.5"], "--eta applies to ddim only (ddpm sets its own noise)"),
@@ -385,6 +385,83 @@ def test_sampling_options_a_sampler_cannot_honour_are_refused(ckpt, tmp_path, ca
     assert main(["sample", "--ckpt", str(ckpt), "--style", "old", "--out", str(out), *options]) == 1
     assert message in capsys.readouterr().err
     assert not out.exists(), "nothing written"
+
+
+def test_guidance_is_bounded_and_non_finite_motion_is_never_written(ckpt, model, tmp_path, capsys):
+    """--guidance 1e30 made a BVH of NaN: the weight is bounded where it is given, and any clip with NaN
+    or infinite values (here from a diverged network) is refused, naming what made it, before a file."""
+    from walkdiff.cli import options
+    from walkdiff.styled.generation import MAX_GUIDANCE
+    from walkdiff.styled.pipeline import StyledGenerator, check_finite
+
+    assert options.MAX_GUIDANCE == MAX_GUIDANCE
+    out = tmp_path / "out"
+    args = ["sample", "--ckpt", str(ckpt), "--style", "old", "--num", "1", "--frames", "30", "--no-gif",
+            "--sampler", "ddim", "--steps", "1"]  # fmt: skip
+    assert main([*args, "--out", str(out), "--guidance", "1e30"]) == 1
+    assert "--guidance: expected a finite number in [0, 100], got '1e30'" in capsys.readouterr().err
+    generator = StyledGenerator(model)
+    with pytest.raises(WalkdiffError, match=r"--guidance must be a number in \[0, 100\].*got 1e\+30"):
+        generator.sample("old", frames=30, sampler="ddim", steps=1, guidance=1e30)
+
+    diverged = torch.load(ckpt, map_location="cpu", weights_only=False)
+    diverged["state_dict"]["ema.module.output.bias"][0] = float("nan")
+    torch.save(diverged, tmp_path / "diverged.ckpt")
+    clip = synthetic.walking(200, fps=120.0, seed=3)
+    write_bvh(tmp_path / "mine.bvh", clip)
+    for command in (
+        ["sample", *args[1:2], str(tmp_path / "diverged.ckpt"), *args[3:]],
+        ["transfer", "--ckpt", str(tmp_path / "diverged.ckpt"), "--style", "old", "--input",
+         str(tmp_path / "mine.bvh"), "--sampler", "ddim", "--steps", "1"],
+    ):  # fmt: skip
+        assert main([*command, "--out", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert "walkdiff: error: the model made non-finite motion (NaN or infinite values in clip 0" in err
+        assert not out.exists(), "nothing written"
+    nan = read_bvh(tmp_path / "mine.bvh")
+    nan.positions[5, 0, 1] = float("nan")
+    with pytest.raises(
+        WalkdiffError, match="--guidance 50 made non-finite motion .* in 1 of 2 clips, the first clip 1"
+    ):
+        check_finite([clip, nan], Sampling(guidance=50))
+
+
+def test_a_transfer_of_a_clip_shorter_than_a_window_says_so(ckpt, model, tmp_path, capsys):
+    """A clip shorter than the model's window is restyled as one shorter window, which the model never
+    trained on: a warning naming the file, its frames and the window; one pose is refused."""
+    from walkdiff.styled.pipeline import StyledGenerator
+
+    source = tmp_path / "short.bvh"
+    write_bvh(source, synthetic.walking(40, fps=120.0, seed=3))  # 10 frames at the model's 30 fps
+    out = tmp_path / "out"
+    common = [
+        "transfer",
+        "--ckpt",
+        str(ckpt),
+        "--style",
+        "old",
+        "--sampler",
+        "ddim",
+        "--steps",
+        "1",
+        "--no-gif",
+    ]
+    assert main([*common, "--input", str(source), "--out", str(out)]) == 0
+    said = (
+        f"{source}: 10 frames at the model's 30 fps (0.33 s), shorter than its 24-frame window (0.80 s): "
+        "restyled as one 10-frame window"
+    )
+    assert f"walkdiff: warning: {said}" in capsys.readouterr().err
+    assert json.loads((out / "short_to_old.json").read_text())["warnings"][0].startswith(said)
+    assert read_bvh(out / "short_to_old.bvh").num_frames == 10
+    with pytest.warns(UserWarning, match="10 frames at the model's 30 fps"):
+        StyledGenerator(model).transfer(source, "old", sampler="ddim", steps=1)
+
+    write_bvh(tmp_path / "pose.bvh", synthetic.walking(4, fps=120.0, seed=3))  # 1 frame at 30 fps
+    assert main([*common, "--input", str(tmp_path / "pose.bvh"), "--out", str(tmp_path / "pose")]) == 1
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'pose.bvh'}: 1 frame at the model's 30 fps: expected at least 2 frames" in err
+    assert not (tmp_path / "pose").exists()
 
 
 def test_outputs_in_the_way_and_missing_devices_are_named(ckpt, tmp_path, capsys):

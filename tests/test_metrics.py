@@ -23,6 +23,8 @@ from walkdiff.metrics import (
     summarize,
     summarize_runs,
 )
+from walkdiff.metrics.bootstrap import ClipStatistics, Reference, interval
+from walkdiff.metrics.protocol import NON_NEGATIVE, PROPORTION
 
 
 @pytest.fixture
@@ -316,6 +318,47 @@ def test_summarize_runs_and_table_format():
     assert table["acc"]["std"] == pytest.approx(0.05)
     assert format_summary({"mean": 12.344, "ci95": 0.5551}) == "12.34 ± 0.56"
     assert format_summary(table["fmd"], decimals=3) == f"2.000 ± {1.96 / math.sqrt(2):.3f}"
+
+
+def test_intervals_of_bounded_metrics_stay_in_their_range():
+    # Two repeats of an accuracy: 0.95 ± 0.069 would reach 1.019; FMD 0.05 ± 0.069 would go below 0.
+    table = summarize_runs(
+        [{"style_acc": 1.0, "fmd": 0.0, "kid": 0.0}, {"style_acc": 0.9, "fmd": 0.1, "kid": 0.1}]
+    )
+    acc, fmd, kid = table["style_acc"], table["fmd"], table["kid"]
+    assert acc["ci95"] == pytest.approx(1.96 * 0.05 / math.sqrt(2)) and acc["high"] == 1.0
+    assert acc["low"] == pytest.approx(acc["mean"] - acc["ci95"]) and fmd["low"] == 0.0
+    assert kid["low"] == pytest.approx(kid["mean"] - kid["ci95"])  # KID is unbiased: it may be < 0
+    assert format_summary(acc, 3) == "0.950 [0.881, 1.000]"
+    assert format_summary(kid, 3) == "0.050 ± 0.069"
+
+
+def _clip_statistics(seed: int) -> ClipStatistics:
+    """9 clips of 1 to 3 windows, about 90% of them recognised."""
+    g = torch.Generator().manual_seed(seed)
+    clip = torch.repeat_interleave(torch.arange(9), torch.randint(1, 4, (9,), generator=g))
+    n = len(clip)
+    zeros = torch.zeros(n)
+    correct = {"style_acc": torch.rand(n, generator=g) < 0.9}
+    reference = Reference.of(torch.randn(50, 4, generator=g).double())
+    x = torch.randn(n, 4, generator=g).double()
+    return ClipStatistics.of(
+        x, clip, reference, correct, (zeros + 2, zeros + 1, zeros + 3), (zeros + 4, zeros + 2)
+    )
+
+
+def test_bootstrap_interval_of_an_accuracy_stays_in_0_1():
+    """On few clips the bias-moved percentile range of an accuracy crossed 1 (0.889 [0.427, 1.027] in
+    issue 33; 0.941 [0.791, 1.005] here with seed 0): a share gets the plain percentile range."""
+    for seed in range(8):
+        result = _clip_statistics(seed).bootstrap(200, seed=0)
+        acc = result["style_acc"]
+        assert 0 <= acc["low"] <= acc["value"] <= acc["high"] <= 1, (seed, acc)
+        assert 0 <= result["skate_ratio"]["low"] <= result["skate_ratio"]["high"] <= 1
+        assert result["fmd"]["low"] >= 0
+    assert interval(np.array([0.8, 0.9, 1.0, 1.0]), 0.95, PROPORTION)[1] == 1.0
+    low, high = interval(np.array([3.0, 4.0, 5.0]), 0.5, NON_NEGATIVE)  # moved down by the bias 3.5
+    assert low == 0.0 and high == pytest.approx(1.45)
 
 
 def test_summarize_rejects_empty_and_inconsistent_input():

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,6 +19,9 @@ from torchmetrics.image.kid import poly_mmd
 
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.evaluation.clips import Clip, ClipScorer
+from walkdiff.evaluation.scorer import MotionScorer
+from walkdiff.evaluation.transfer import read_transfer_manifest, real_targets
 from walkdiff.metrics import FrechetMotionDistance
 from walkdiff.metrics.bootstrap import ClipStatistics, Reference
 from walkdiff.motion.body_features import BodyFrame, resample_positions
@@ -266,6 +270,43 @@ def test_score_refuses_another_skeleton_and_an_old_report(setup, folders, tmp_pa
     assert "clip.bvh: not the evaluator's skeleton: missing LeftUpLeg" in err and "Traceback" not in err
 
 
+def test_real_windows_are_cached_with_the_evaluator(setup, tmp_path, monkeypatch, caplog):  # noqa: F811
+    """Every score embedded the real splits again (11.5 s on Xia): they are cached, keyed by the
+    evaluator file's content and the data, and made again when either changes."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    for path in setup["cache"].glob("*.npz"):
+        if "-embedded-" not in path.name:  # the features only
+            (cache / path.name).write_bytes(path.read_bytes())
+    first = ClipScorer(setup["ckpt"], setup["root"], cache)
+    train = first.real_windows("train")
+    assert len(list(cache.glob("*-embedded-*.npz"))) == 2  # the test reference and the training split
+    calls = []
+    embed = MotionScorer.embed
+    monkeypatch.setattr(MotionScorer, "embed", lambda self, windows: calls.append(1) or embed(self, windows))
+    again = ClipScorer(setup["ckpt"], setup["root"], cache)
+    assert torch.equal(again.real_windows("train").features, train.features) and not calls
+    assert torch.equal(again.real_windows("train").positions, train.positions)
+    assert torch.equal(again.reference.features, first.reference.features)
+
+    checkpoint = torch.load(setup["ckpt"], weights_only=True)  # the same evaluator with other weights
+    for weight in checkpoint["state_dict"].values():
+        if weight.is_floating_point():
+            weight += 0.01
+    torch.save(checkpoint, tmp_path / "other.ckpt")
+    other = ClipScorer(tmp_path / "other.ckpt", setup["root"], cache)
+    assert len(calls) == 1 and not torch.equal(other.reference.features, first.reference.features)
+    ClipScorer(setup["ckpt"], setup["root"], cache, stride=3).real_windows("train")  # other windows
+    ClipScorer(setup["ckpt"], setup["root"], cache, contents="walk,run").real_windows("train")  # more clips
+    assert len(calls) == 1 + 1 + 2 and len(list(cache.glob("*-embedded-*.npz"))) == 2 + 1 + 1 + 2
+
+    for path in cache.glob("*-embedded-*.npz"):
+        path.write_bytes(b"PK\x03\x04 cut short")
+    again = ClipScorer(setup["ckpt"], setup["root"], cache)
+    assert torch.equal(again.real_windows("train").features, train.features) and len(calls) == 4 + 2
+    assert "unreadable cache of embedded windows" in caplog.text and not list(cache.glob(".*.tmp"))
+
+
 def _manifest(path: Path, rows: list[tuple[str, str, str]]) -> Path:
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
@@ -285,7 +326,7 @@ def test_transfer_protocol_scores_output_and_both_baselines(setup, folders, tmp_
     manifest = _manifest(tmp_path / "transfer.csv", rows)
     args = _transfer_args(manifest, setup["ckpt"], tmp_path / "t")
     args += ["--root", str(setup["root"]), "--cache-dir", str(setup["cache"]), "--bootstrap", "30"]
-    assert main(args) == 0
+    assert main(args + ["--allow-outside"]) == 0  # the clips are in another folder than the manifest
     report = json.loads((tmp_path / "t" / "report.json").read_text())
     out, source, real = (
         report["rows"][k]
@@ -294,9 +335,109 @@ def test_transfer_protocol_scores_output_and_both_baselines(setup, folders, tmp_
     assert out["target_style_acc"]["value"] == source["target_style_acc"]["value"]
     assert out["content_distance"]["value"] == pytest.approx(0.0, abs=1e-6)
     assert real["content_distance"]["value"] > 0.05
-    assert report["verdict"]["style_transfer"] is False
-    assert report["verdict"]["checks"]["target_style_vs_source"] is False
-    assert "Style transfer: **no**" in (tmp_path / "t" / "report.md").read_text()
+    verdict = report["verdict"]
+    assert verdict["checks"]["target_style_vs_source"] is False
+    # 4 clips are too few to tell (one clip flipped the verdict in issue 33): no yes or no.
+    assert verdict["verdict"] == "inconclusive" and verdict["style_transfer"] is None
+    assert "fewer than 5 source clips for target style" in verdict["warning"]
+    margin = verdict["margins"]["target_style_vs_source"]
+    assert margin["value"] == margin["low"] == margin["high"] == 0.0 and margin["settled"]
+    # Which real clip stood in for each source, in the JSON and in the page.
+    real_names = {c.name for c in ClipScorer(setup["ckpt"], setup["root"], setup["cache"]).real_clips("test")}
+    markdown = (tmp_path / "t" / "report.md").read_text()
+    for clip in report["clips"]:
+        assert clip["baseline_real_clip"] in real_names and clip["source"].endswith(".bvh")
+        assert f"`{clip['source']}` → {clip['style']}: {clip['baseline_real_clip']}" in markdown
+    assert "Style transfer: **inconclusive**" in markdown and "Warning: too few clips to tell" in markdown
+
+
+def test_transfer_verdict_on_enough_clips_is_no_for_an_unchanged_source(setup, folders, tmp_path):  # noqa: F811
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    for path in sorted(folders[0].glob("*.bvh")):
+        (clips / path.name).write_bytes(path.read_bytes())
+    with (tmp_path / "transfer.csv").open("w") as f:
+        f.write("file,source,style,content\n")
+        f.writelines(f"clips/{p.name},clips/{p.name},old,walk\n" for p in sorted(clips.glob("*.bvh")))
+    args = _transfer_args(tmp_path / "transfer.csv", setup["ckpt"], tmp_path / "t")
+    args += ["--root", str(setup["root"]), "--cache-dir", str(setup["cache"]), "--bootstrap", "30"]
+    assert main(args) == 0
+    verdict = json.loads((tmp_path / "t" / "report.json").read_text())["verdict"]
+    assert verdict["sources_per_style"] == {"old": 8} and verdict["warning"] is None
+    assert verdict["verdict"] == "no" and verdict["style_transfer"] is False
+
+
+def _fake_scorer(real: list[Clip]):
+    return SimpleNamespace(
+        real_clips=lambda split: real, window=24, fps=30.0, data=SimpleNamespace(selection=SimpleNamespace(
+            names=("walk", "run")))
+    )  # fmt: skip
+
+
+def test_a_real_clip_too_short_for_the_baseline_is_named():
+    frames = np.zeros((17, 3, 3))
+    fake = _fake_scorer([Clip("strutting_14_003", frames, "strutting", "run")])
+    with pytest.raises(WalkdiffError) as error:
+        real_targets(fake, ["strutting"], [Clip("mine.bvh", frames, content="run")])
+    message = str(error.value)
+    assert "no 'strutting' clip at least 24 frames long" in message and "mine.bvh (run)" in message
+    assert "strutting_14_003 (run, 17 frames)" in message
+    # A clip of the content long enough stands in, and says which it is.
+    long = Clip("strutting_13_000", np.zeros((40, 3, 3)), "strutting", "run")
+    fake = _fake_scorer([fake.real_clips("test")[0], long])
+    (chosen,) = real_targets(fake, ["strutting"], [Clip("mine.bvh", frames, content="run")])
+    assert chosen.name == "strutting_13_000" and chosen.content == "run"
+
+
+def _read_manifest(folder: Path, text: str, allow_outside: bool = False) -> list[dict]:
+    (folder / "m.csv").write_text("file,source,style\n" + text)
+    return read_transfer_manifest(folder / "m.csv", allow_outside)
+
+
+def test_transfer_manifest_paths_stay_in_its_folder(tmp_path, monkeypatch):
+    """Issue 33: a manifest named /etc/passwd and got its first line echoed. Its paths now resolve
+    inside its folder; another place needs --allow-outside."""
+    inside, outside = tmp_path / "m", tmp_path / "elsewhere"
+    (inside / "clips").mkdir(parents=True)
+    outside.mkdir()
+    (inside / "clips" / "a.bvh").write_text("HIERARCHY")
+    (outside / "b.bvh").write_text("HIERARCHY")
+    (inside / "clips" / "out.bvh").symlink_to(outside / "b.bvh")
+    (inside / "clips" / "in.bvh").symlink_to(inside / "clips" / "a.bvh")
+    monkeypatch.setenv("HOME", str(outside))
+    refused = {
+        "absolute": (f"{outside / 'b.bvh'},clips/a.bvh,old\n", "file"),
+        "home": ("clips/a.bvh,~/b.bvh,old\n", "source"),
+        "parent": ("clips/a.bvh,clips/../../elsewhere/b.bvh,old\n", "source"),
+        "link out": ("clips/out.bvh,clips/a.bvh,old\n", "file"),
+    }
+    for case, (row, column) in refused.items():
+        with pytest.raises(WalkdiffError) as error:
+            _read_manifest(inside, "clips/a.bvh,clips/a.bvh,old\n" + row)
+        message = str(error.value)
+        assert message.startswith(f"{inside / 'm.csv'}:3: {column} "), (case, message)
+        assert "is outside the manifest's folder" in message and "--allow-outside" in message, case
+        rows = _read_manifest(inside, row, allow_outside=True)
+        assert rows[0][column].resolve() == (outside / "b.bvh").resolve(), case
+    rows = _read_manifest(inside, "clips/in.bvh,clips/../clips/a.bvh,old\n")  # links and .. kept inside
+    assert rows[0]["file"].resolve() == rows[0]["source"].resolve()
+
+
+def test_transfer_refuses_a_repeated_output_and_a_folder_beside_it(tmp_path, capsys):
+    (tmp_path / "a.bvh").write_text("HIERARCHY")
+    (tmp_path / "b.bvh").write_text("HIERARCHY")
+    with pytest.raises(WalkdiffError) as error:
+        _read_manifest(tmp_path, "a.bvh,b.bvh,old\nb.bvh,b.bvh,old\n./a.bvh,b.bvh,proud\n")
+    assert str(error.value) == (
+        f"{tmp_path / 'm.csv'}:4: file './a.bvh' is the output of line 2 too: expected each output once "
+        "(a repeated row would count twice)"
+    )
+    # One source for several outputs is what a transfer to several styles gives.
+    assert len(_read_manifest(tmp_path, "a.bvh,b.bvh,old\nb.bvh,b.bvh,old\n")) == 2
+    args = ["score", str(tmp_path), "--transfer", str(tmp_path / "m.csv"), "--evaluator", "e.ckpt"]
+    assert main(args + ["--out", str(tmp_path / "o")]) == 1
+    assert "not both: the manifest names every file it scores" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
 
 
 def test_transfer_manifest_errors_name_the_line(setup, tmp_path, capsys):  # noqa: F811

@@ -293,6 +293,37 @@ def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_roo
     assert not list((tmp_path / "checkpoints").rglob("*-v1.ckpt"))
 
 
+def test_a_best_checkpoint_skips_validations_that_do_not_log_its_metric(
+    tiny_root, tmp_path, monkeypatch, capsys
+):
+    """Issue 33: xia_cpu.yaml with --trainer.check_val_every_n_epoch 1 failed after the first epoch, its
+    best checkpoint monitoring metrics/fmd, which MotionMetrics logs every 5th epoch only."""
+    from walkdiff.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+    best = {"dirpath": "checkpoints/every", "filename": "best-{epoch:04d}", "link": "best"}
+    callbacks = [
+        {"class_path": "probes.LogEveryOtherEpoch", "init_args": {"key": "probe/score"}},
+        {"class_path": "walkdiff.callbacks.checkpoints.RunCheckpoint",
+         "init_args": best | {"monitor": "probe/score", "mode": "min", "save_top_k": -1}},
+        {"class_path": "walkdiff.callbacks.checkpoints.RunCheckpoint",
+         "init_args": best | {"dirpath": "checkpoints/typo", "monitor": "probe/scor"}},
+    ]  # fmt: skip
+    config = tmp_path / "every.yaml"
+    config.write_text(probes.tiny_fit_config(tiny_root, "every", epochs=4, batches=1, callbacks=callbacks))
+    assert main(["fit", "--config", str(config), "--trainer.check_val_every_n_epoch", "1"]) == 0
+    # Saved at the validations that logged the metric (epochs 1 and 3), never on a stale value between.
+    run = (tmp_path / "checkpoints" / "every" / "best.ckpt").resolve().parent
+    assert sorted(p.name for p in run.glob("best-*.ckpt")) == ["best-epoch=0001.ckpt", "best-epoch=0003.ckpt"]
+    assert (tmp_path / "checkpoints" / "every" / "best.ckpt").resolve() == run / "best-epoch=0003.ckpt"
+    # A monitor that no validation logs (a typo) saves nothing, and says so rather than failing the run.
+    assert not list((tmp_path / "checkpoints" / "typo").rglob("*.ckpt"))
+    err = capsys.readouterr().err
+    assert "no best checkpoint saved: its monitor 'probe/scor' was never logged in this run" in err
+    assert "probe/score" in err
+
+
 def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_path, capsys):
     from walkdiff.callbacks.checkpoints import _point
 

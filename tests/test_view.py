@@ -97,3 +97,56 @@ def test_bench_view_times_the_page_until_the_skeletons_show(clips, tmp_path, cap
     assert result["shown_s_median"] > 0 and result["served_s"] > 0
     assert main(["bench", "view", *map(str, clips), "--out", str(out)]) == 1  # no --overwrite
     assert "--overwrite" in capsys.readouterr().err
+
+
+ONE_JOINT = """\
+HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  End Site
+  {
+    OFFSET 0 170 0
+  }
+}
+MOTION
+Frames: 4
+Frame Time: 0.1
+0 90 0 0 0 0
+10 90 0 0 0 0
+20 90 0 0 0 0
+30 90 0 0 0 0
+"""
+
+
+def test_a_one_joint_clip_is_a_moving_point_and_inspect_and_convert_take_it(xia_dir, tmp_path, capsys):
+    """Issue 33: `walkdiff view` of a one-joint file died in viser's assertion (no bones to draw)."""
+    from walkdiff.cli.main import main
+
+    path = tmp_path / "point.bvh"
+    path.write_text(ONE_JOINT)
+    clip = load_clip(path)
+    assert not clip.has_bones and clip.colors.shape == (0, 2, 3)
+    assert clip.drawn(0.0).shape == (1, 3) and clip.drawn(0.1)[0, 0] - clip.drawn(0.0)[0, 0] == pytest.approx(
+        0.1
+    )
+    server = subprocess.Popen(
+        [sys.executable, "-m", "walkdiff.cli.main", "view", str(path), str(xia_dir / "angry_01_000.bvh"),
+         "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        assert any("walkdiff view: http://" in line for line in server.stdout), "ended without serving"
+        time.sleep(1.0)  # the point is moved frame by frame
+        assert server.poll() is None
+    finally:
+        server.terminate()
+        output = server.communicate(timeout=30)[0]
+    assert "Traceback" not in output and "Error" not in output, output[-2000:]
+
+    assert main(["inspect", str(path)]) == 0 and "joints:    1 (Hips)" in capsys.readouterr().out
+    assert main(["convert", str(path), str(tmp_path / "point.glb")]) == 0
+    assert main(["convert", str(path), str(tmp_path / "out.bvh")]) == 1  # the features need feet
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"walkdiff: error: {path}: converting to BVH goes through the features: no feet")

@@ -33,7 +33,7 @@ from scipy.signal import argrelmin
 
 from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.common.files import check_free, output_folder, write_json
+from walkdiff.common.files import check_free, output_folder, output_set, write_json
 from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
@@ -211,7 +211,8 @@ def gesture(
     start = time.perf_counter()
     clips = synthesize(model, mel, streams, seed, smooth, choice)
     elapsed = time.perf_counter() - start
-    files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate))
+    with output_set(out):  # all or none: no BVH without the others and the preview
+        files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate))
     return {
         "frames": len(mel),
         "seconds": len(mel) / model.spec["fps"],
@@ -258,6 +259,7 @@ def gesture_stream(
         emit,
         read_growing,
         read_pipe,
+        stopped,
     )
 
     if streams < 1:
@@ -315,39 +317,54 @@ def gesture_stream(
 
     if from_stdin:
         start(rate)
-    for data in chunks:
-        arrived = time.perf_counter()
-        samples = decoder.decode(data)
-        if not live and decoder.rate is not None:
-            rate = decoder.rate
-            limit = None if seconds is None else round(seconds * rate)
-            start(rate)
-        if limit is not None:
-            samples = samples[: max(limit - received, 0)]
-        received += len(samples)
+    failure = None
+    try:
+        for data in chunks:
+            arrived = time.perf_counter()
+            samples = decoder.decode(data)
+            if not live and decoder.rate is not None:
+                rate = decoder.rate
+                limit = None if seconds is None else round(seconds * rate)
+                start(rate)
+            if limit is not None:
+                samples = samples[: max(limit - received, 0)]
+            received += len(samples)
+            for stream in live:
+                stream.feed(samples)
+            batch.run()
+            send(arrived)
+            if limit is not None and received >= limit:
+                break
+        else:
+            decoder.end()
         for stream in live:
-            stream.feed(samples)
-        batch.run()
-        send(arrived)
-        if limit is not None and received >= limit:
-            break
-    else:
-        decoder.end()
-    for stream in live:
-        stream.close()
+            stream.close()
+    except WalkdiffError as error:  # bad input midway: the frames made so far are written, then it fails
+        failure = error
     batch.run()
     send(time.perf_counter())
-    clips = [np.stack(p) for p in poses]
-    if smooth:  # the BVH only: the live lines could not wait for the filter's 15 frames ahead
-        clips = [savgol(c, SMOOTH_WINDOW, SMOOTH_ORDER, axis=0) for c in clips]
-    for path, clip in zip(targets, clips):
-        write_bvh(path, model.to_file(to_motion(model, clip)))
+    made = _write_streamed(model, targets, poses, smooth)
+    if failure is not None:
+        raise stopped(failure, made, targets if made else [])
     summary = {
-        "done": True, "frames": len(clips[0]), "seconds": received / rate, "streams": streams,
+        "done": True, "frames": made, "seconds": received / rate, "streams": streams,
         "wall_s": round(time.perf_counter() - started, 3), "files": [str(t) for t in targets],
     }  # fmt: skip
     emit(summary)
     return summary
+
+
+def _write_streamed(model, targets: list[Path], poses: list[list[np.ndarray]], smooth: bool) -> int:
+    """The BVH of each stream's poses, all or none; the frames each holds (0: none made, none written)."""
+    made = len(poses[0])
+    if made:
+        clips = [np.stack(p) for p in poses]
+        if smooth:  # the BVH only: the live lines could not wait for the filter's 15 frames ahead
+            clips = [savgol(c, SMOOTH_WINDOW, SMOOTH_ORDER, axis=0) for c in clips]
+        with output_set(targets[0].parent):
+            for path, clip in zip(targets, clips):
+                write_bvh(path, model.to_file(to_motion(model, clip)))
+    return made
 
 
 # ---------------------------------------------------------------- metrics

@@ -34,10 +34,11 @@ import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.data.speech import LogMelStream
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root, path_control, path_start
-from walkdiff.motion.path import Polyline, frames_for
+from walkdiff.motion.path import Polyline, frames_for, frames_for_length
 
 
 class StreamBatch:
@@ -229,10 +230,41 @@ class WalkStream(Stream):
         self.row = self.batch.join(self)
 
     def feed(self, points) -> None:
-        """More path points (n, 2), appended to the path."""
+        """More path points (n, 2), appended to the path. The first point that is not finite, or makes the
+        path longer than a walk that fits in memory (`check_frames`, as `walkdiff walk` caps a path file),
+        is refused with those after it: a WalkdiffError, the points before it appended."""
         if self.closed:
             raise WalkdiffError("path points arrived after the end of the path")
-        self.points.extend(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        previous = np.asarray(self.points[-1:] or points[:1]).reshape(-1, 2)
+        with np.errstate(over="ignore", invalid="ignore"):  # refused below
+            steps = np.linalg.norm(np.diff(np.concatenate([previous, points]), axis=0), axis=1)
+            ends = (0.0 if self.path is None else self.path.length) + np.cumsum(steps)
+        refusal = None
+        # Arc lengths only grow, and a non-finite point makes every later one non-finite: the last point
+        # passes only if all do.
+        if len(points) and self._refusal(points[-1], ends[-1]) is not None:
+            keep = next(k for k in range(len(points)) if self._refusal(points[k], ends[k]) is not None)
+            refusal, points = self._refusal(points[keep], ends[keep]), points[:keep]
+        self._append(points)
+        if refusal is not None:
+            raise refusal
+
+    def _refusal(self, point: np.ndarray, end: float) -> WalkdiffError | None:
+        """Why the path cannot take `point`, which makes it `end` long; None if it can."""
+        if not np.isfinite(point).all():
+            return WalkdiffError(f"expected a path point of finite numbers, got {point.tolist()}")
+        if not np.isfinite(end):
+            return WalkdiffError("the path up to this point is too long: its length overflows")
+        try:
+            frames = frames_for_length(end, self.speed, self.model.spec["fps"])
+            check_frames("the path up to this point", frames, WALK_BYTES_PER_FRAME)
+        except WalkdiffError as error:
+            return error
+        return None
+
+    def _append(self, points: np.ndarray) -> None:
+        self.points.extend(points)
         if len(self.points) >= 2:
             self.path = Polyline.of(self.points)
         if self.start is None and self.path is not None and self.path.length > 0:
@@ -336,8 +368,12 @@ class WavDecoder:
         self.channels = self.width = 0
         self.left = b""
         self.floating = False
+        self.decoded = 0  # samples given so far
+        self.bad: WalkdiffError | None = None  # raised at the next call, once the samples before it are out
 
     def decode(self, data: bytes) -> np.ndarray:
+        if self.bad is not None:
+            raise self.bad
         if self.rate is None:
             self.head += data
             data = self._header()
@@ -352,12 +388,18 @@ class WavDecoder:
         if not self.floating:
             samples /= np.float32(32768)
         elif not np.isfinite(samples).all():
-            raise WalkdiffError(
-                f"{self.where}: samples that are not finite numbers; expected audio in [-1, 1]"
+            first = int(np.argmin(np.isfinite(samples).all(axis=1)))
+            at = (self.decoded + first) / self.rate
+            self.bad = WalkdiffError(
+                f"{self.where}: a sample that is not a finite number at {at:.3f} s; expected audio in [-1, 1]"
             )
+            samples = samples[:first]
+        self.decoded += len(samples)
         return samples.mean(axis=1)
 
     def end(self) -> None:
+        if self.bad is not None:
+            raise self.bad
         if self.rate is None:
             raise WalkdiffError(f"{self.where}: no WAV header with a 'data' chunk arrived")
 
@@ -403,3 +445,13 @@ class WavDecoder:
 def emit(line: dict) -> None:
     """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made."""
     print(json.dumps(line, separators=(",", ":")), flush=True)
+
+
+def stopped(error: WalkdiffError, frames: int, files: list[Path]) -> WalkdiffError:
+    """A stream whose input went bad: its last JSON line says so, with the frames made before and the
+    files they were written to; the error to raise names the input's fault and where those frames are."""
+    emit({"done": False, "frames": frames, "error": str(error), "files": [str(f) for f in files]})
+    if not files:
+        return error
+    kept = f"the {frames} frames made before it are in {', '.join(str(f) for f in files)}"
+    return WalkdiffError(f"{error.reason}; {kept}", path=error.path, line=error.line)

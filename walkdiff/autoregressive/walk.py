@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.common.files import check_free, output_folder, write_atomic, write_json
+from walkdiff.common.files import check_free, output_folder, output_set, write_atomic, write_json
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
@@ -219,11 +219,39 @@ def walk(
     bvh = out / f"{stem}.bvh"
     written = [bvh, out / f"{stem}_path.png", out / f"{stem}.json"]
     check_free(written + ([bvh.with_suffix(".gif"), bvh.with_suffix(".mp4")] if gif else []), overwrite)
-    out.mkdir(parents=True, exist_ok=True)
 
     started = time.perf_counter()
+    # Refused here (a path too long for memory, a style without a speed) before the folder exists.
     motion, speed_m_s = follower.walk_along(metres, style, speed or file_speed, seed, choice)
     elapsed = time.perf_counter() - started
+    root_xz = motion.root_positions[:, [0, 2]]
+    with output_set(out):
+        files = _write_walk(out, stem, model, motion, metres, style, cap)
+        manifest = {
+            "checkpoint": str(ckpt),
+            "style": style,
+            "path": str(path),
+            "path_length_m": metres.length,
+            "speed_m_s": speed_m_s,
+            "seed": seed,
+            "sampler": choice.label(model.diffusion),
+            "frames": motion.num_frames,
+            "seconds": motion.num_frames / motion.fps,
+            "generation_seconds": round(elapsed, 2),
+            "path_error_m": path_error(metres, root_xz * unit),
+            "files": [str(f) for f in files],
+            "preview": None if cap is None else cap.describe(motion.num_frames, motion.fps),
+        }
+        write_json(out / f"{stem}.json", manifest)
+    return manifest
+
+
+def _write_walk(
+    out: Path, stem: str, model, motion: Motion, metres: Polyline, style: str, cap: PreviewCap | None
+) -> list[Path]:
+    """A walk's BVH, its top-down plot in metres and, unless `cap` is None, its GIF and MP4."""
+    unit = model.profile.metres_per_unit
+    bvh = out / f"{stem}.bvh"
     root_xz = motion.root_positions[:, [0, 2]]
     write_bvh(bvh, model.to_file(motion))
     files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, metres, [(style, root_xz * unit)])])]
@@ -231,41 +259,41 @@ def walk(
         polyline = Polyline.of(metres.points / unit)  # drawn in the model's units, as it walked
         gif = render_walk(out / f"{stem}.gif", model, motion, polyline, cap)
         files += [gif, gif.with_suffix(".mp4")]
-    manifest = {
-        "checkpoint": str(ckpt),
-        "style": style,
-        "path": str(path),
-        "path_length_m": metres.length,
-        "speed_m_s": speed_m_s,
-        "seed": seed,
-        "sampler": choice.label(model.diffusion),
-        "frames": motion.num_frames,
-        "seconds": motion.num_frames / motion.fps,
-        "generation_seconds": round(elapsed, 2),
-        "path_error_m": path_error(metres, root_xz * unit),
-        "files": [str(f) for f in files],
-        "preview": None if cap is None else cap.describe(motion.num_frames, motion.fps),
-    }
-    write_json(out / f"{stem}.json", manifest)
-    return manifest
+    return files
 
 
 def path_points(chunks, where: str):
     """Path points (x, z) from JSON lines, `{"x": .., "z": ..}` each, as their bytes arrive: per chunk,
-    the list of points its complete lines give (blank lines skipped)."""
+    (line number, point) for each of its complete lines (blank lines skipped). A bad line is a
+    WalkdiffError naming it, raised once the points before it have been given."""
     import json
 
     pending, number = b"", 0
     for data in chunks:
         lines = (pending + data).split(b"\n")
         pending, points = lines.pop(), []
-        for line in lines:
-            number += 1
-            if line.strip():
-                points.append(_point(line, where, number, json))
+        try:
+            for line in lines:
+                number += 1
+                if line.strip():
+                    points.append((number, _point(line, where, number, json)))
+        except WalkdiffError as error:
+            yield points  # the walk goes as far as the good points take it
+            raise error
         yield points
     if pending.strip():
-        yield [_point(pending, where, number + 1, json)]
+        yield [(number + 1, _point(pending, where, number + 1, json))]
+
+
+def _feed(stream, points: list[tuple[int, list[float]]], unit: float, where: str) -> None:
+    """(line number, point in metres) pairs to a WalkStream, which walks in the model's units; the point
+    it refuses (too far for memory) is named by its line."""
+    before = len(stream.points)
+    try:
+        stream.feed(np.asarray([point for _, point in points]).reshape(-1, 2) / unit)
+    except WalkdiffError as error:
+        line = points[min(len(stream.points) - before, len(points) - 1)][0]
+        raise WalkdiffError(error.reason, path=where, line=line) from None
 
 
 def _point(line: bytes, where: str, number: int, json) -> list[float]:
@@ -303,7 +331,7 @@ def walk_stream(
     the end."""
     import sys
 
-    from walkdiff.autoregressive.streaming import WalkStream, emit, read_growing, read_pipe
+    from walkdiff.autoregressive.streaming import WalkStream, emit, read_growing, read_pipe, stopped
 
     follower = PathFollower.load(ckpt)
     model = follower.model
@@ -341,15 +369,22 @@ def walk_stream(
                 "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
             })  # fmt: skip
 
-    for points in path_points(chunks, path):
-        arrived = time.perf_counter()
-        stream.feed(np.asarray(points).reshape(-1, 2) / unit)  # the model walks in its data's units
-        stream.batch.run()
-        send(arrived)
-    stream.close()
+    failure = None
+    try:
+        for points in path_points(chunks, path):
+            arrived = time.perf_counter()
+            _feed(stream, points, unit, path)
+            stream.batch.run()
+            send(arrived)
+        stream.close()
+    except WalkdiffError as error:  # bad input midway: the frames made so far are written, then it fails
+        failure = error
     stream.batch.run()
     send(time.perf_counter())
-    write_bvh(bvh, model.to_file(to_motion(model, np.stack(raws), stream.start)))
+    if raws:
+        write_bvh(bvh, model.to_file(to_motion(model, np.stack(raws), stream.start)))
+    if failure is not None:
+        raise stopped(failure, len(raws), [bvh] if raws else [])
     summary = {
         "done": True, "frames": len(raws), "path_length_m": stream.path.length * unit,
         "speed_m_s": units_per_s * unit, "wall_s": round(time.perf_counter() - started, 3),

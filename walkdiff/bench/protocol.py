@@ -7,7 +7,7 @@ any method, beside the baselines every method is compared with.
 - Transfer: every real test clip of the protocol's contents restyled to every other style, at each
   strength, with and without `--keep-trajectory`; the unchanged sources and real clips of the target
   styles scored the same way. A setting is a style transfer when it beats both baselines
-  (`score.transfer_verdict`).
+  (`transfer.transfer_verdict`: "inconclusive" where the clips are too few to tell).
 
 Writes OUT/protocol.json and OUT/protocol.md (the README's table).
 """
@@ -21,16 +21,17 @@ import torch
 
 from walkdiff.common.files import output_folder, write_json, write_text
 from walkdiff.common.progress import progress
-from walkdiff.evaluation.score import (
-    METRICS,
-    Clip,
-    ClipScorer,
-    format_summary,
+from walkdiff.evaluation.clips import Clip, ClipScorer
+from walkdiff.evaluation.score import METRICS, format_summary
+from walkdiff.evaluation.scorer import generate_windows
+from walkdiff.evaluation.transfer import (
+    MIN_SOURCES_PER_STYLE,
+    real_targets,
+    sources_per_style,
     transfer_baselines,
     transfer_row,
     transfer_verdict,
 )
-from walkdiff.evaluation.scorer import generate_windows
 
 SAMPLE_METRICS = ("style_acc", "fmd", "kid", "diversity", "skate_ratio", "jitter")
 TRANSFER_METRICS = ("target_style_acc", "content_kept", "content_distance", "fmd", "kid", "skate_ratio")
@@ -109,7 +110,7 @@ def bench_protocol(
             rows[f"distilled student, DDIM {k}"] = _sample_row(
                 scorer, distilled, samples, seed, batch_size, bootstrap, sampler="ddim", steps=k
             )
-    train = scorer.windows(scorer.real_clips("train"))
+    train = scorer.real_windows("train")
     rows["real train (floor)"] = scorer.statistics(train, scorer.recognition(train)).bootstrap(
         bootstrap, seed
     )
@@ -122,7 +123,7 @@ def bench_protocol(
     ]
     sources = [
         Clip(f"test/{i}", scorer.scorer.positions(torch.from_numpy(f)[None])[0].numpy(),
-             scorer.styles[info.style], scorer.data.selection.names[info.content])
+             scorer.styles[info.style], scorer.data.source.groups[info.content])
         for i, (info, f) in enumerate(test)
     ]  # fmt: skip
     raws = [torch.from_numpy(f) for _, f in test]
@@ -132,10 +133,19 @@ def bench_protocol(
         for keep in (False, True):
             outputs, paired, targets = _transfers(scorer, model, sources, raws, strength, keep, seed)
             name = f"transfer {strength:g}" + (", keep trajectory" if keep else "")
-            transfer[name] = transfer_row(scorer, outputs, paired, bootstrap, seed)[0]
-    baselines = transfer_baselines(scorer, paired, targets, bootstrap, seed)
-    verdicts = {name: transfer_verdict({"output": row} | baselines) for name, row in transfer.items()}
-    transfer |= baselines
+            transfer[name] = transfer_row(scorer, outputs, paired, bootstrap, seed)
+    real = real_targets(scorer, targets, paired)
+    stand_ins = [
+        {"source": s.name, "style": t, "real": r.name, "real_content": r.content}
+        for s, t, r in zip(paired, targets, real, strict=True)
+    ]
+    baselines = transfer_baselines(scorer, paired, targets, real, bootstrap, seed)
+    per_style = sources_per_style(targets, [s.name for s in paired])
+    verdicts = {
+        name: transfer_verdict({"output": row} | baselines, per_style, bootstrap, seed)
+        for name, row in transfer.items()
+    }
+    transfer = {name: row.summary for name, row in (transfer | baselines).items()}
 
     result = {
         "benchmark": "protocol",
@@ -150,6 +160,7 @@ def bench_protocol(
         "sampling": rows,
         "transfer": transfer,
         "verdicts": verdicts,
+        "baseline_real_clips": stand_ins,
         "elapsed_s": round(time.perf_counter() - started, 1),
     }
     write_json(out / "protocol.json", result)
@@ -164,11 +175,8 @@ def _table(rows: dict[str, dict], metrics: tuple[str, ...], verdicts: dict | Non
         cells = [format_summary(row[m], METRICS[m][1]) if m in row else "" for m in metrics]
         verdict = ""
         if verdicts is not None:
-            verdict = (
-                " | " + ("**yes**" if verdicts[name]["style_transfer"] else "no")
-                if name in verdicts
-                else " | "
-            )
+            shown = {"yes": "**yes**", "no": "no", "inconclusive": "inconclusive"}
+            verdict = " | " + (shown[verdicts[name]["verdict"]] if name in verdicts else "")
         lines.append(f"| {name} | " + " | ".join(cells) + verdict + " |")
     return lines
 
@@ -194,7 +202,10 @@ def format_protocol(result: dict) -> str:
         "",
         "A style transfer must recognise the target style at least 80% as often as real clips of that "
         "style do and more often than the unchanged source, keep the source's content in 95% of windows, "
-        "and stay nearer the source than real clips of the target style.",
+        "and stay nearer the source than real clips of the target style. A verdict needs at least "
+        f"{MIN_SOURCES_PER_STYLE} source clips per target style and the 95% interval of every check's margin "
+        "on one side of its bar; else it is inconclusive. The real clip that stood in for each source and "
+        "target style: `baseline_real_clips` in protocol.json.",
         "",
     ]
     return "\n".join(lines)

@@ -75,6 +75,7 @@ class RunCheckpoint(ModelCheckpoint):
                 f"RunCheckpoint: filename {self.filename!r} gives no name for the stable link; set link"
             )
         self.run_dir: str | None = None
+        self._judged = None  # the monitored metric's value the last save looked at
 
     def setup(self, trainer, pl_module, stage: str) -> None:
         if stage == "fit" and self.run_dir is None:
@@ -95,6 +96,29 @@ class RunCheckpoint(ModelCheckpoint):
         if previous and self.run_dir is not None and Path(previous).parent == self.root:
             state_dict = {**state_dict, "dirpath": self.dirpath}
         super().load_state_dict(state_dict)
+
+    def _save_topk_checkpoint(self, trainer, monitor_candidates: dict) -> None:
+        # A metric that only some validations log (MotionMetrics' metrics/fmd, every 5th epoch) is absent
+        # from the others, or holds the value an earlier save judged (Lightning keeps a metric's last
+        # value, the same object, until it is logged again): skip those, where Lightning's ModelCheckpoint
+        # failed the run after its first epoch, or saved epochs on a score they did not get.
+        if self.monitor is not None:
+            value = trainer.callback_metrics.get(self.monitor)
+            if self.monitor not in monitor_candidates or value is self._judged:
+                return
+            self._judged = value
+        super()._save_topk_checkpoint(trainer, monitor_candidates)
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        super().on_train_end(trainer, pl_module)
+        if self.monitor is not None and self._judged is None and trainer.is_global_zero:
+            logged = ", ".join(sorted(set(trainer.callback_metrics) - {"epoch", "step"})) or "none"
+            print(
+                f"walkdiff: warning: no {self.link} checkpoint saved: its monitor {self.monitor!r} was "
+                f"never logged in this run (logged: {logged}); the run ended before what logs it ran, or "
+                "the monitor's name is wrong",
+                file=sys.stderr,
+            )
 
     def _save_checkpoint(self, trainer, filepath: str) -> None:
         super()._save_checkpoint(trainer, filepath)

@@ -22,7 +22,11 @@ def add_parsers(sub) -> None:
     p.add_argument("--pattern", default=None, help="regex with (?P<style>...) / (?P<content>...) groups")
     p.add_argument(
         "--transfer", default=None,
-        help="transfer manifest CSV: file, source, style[, content] (paths relative to it)",
+        help="transfer manifest CSV: file, source, style[, content] (paths relative to it, in its folder)",
+    )  # fmt: skip
+    p.add_argument(
+        "--allow-outside", action="store_true",
+        help="let the --transfer manifest name files outside its folder (absolute, ~ and .. paths, links)",
     )  # fmt: skip
     p.add_argument(
         "--stride", type=count(1), default=None, help="frames between windows (default: half a window)"

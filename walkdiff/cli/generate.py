@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import argparse
 
-from walkdiff.cli.options import PREVIEW_HELP, SAMPLER_HELP, SAMPLERS, keyword_options
+from walkdiff.cli.options import (
+    GUIDANCE_HELP,
+    MAX_GUIDANCE,
+    PREVIEW_HELP,
+    SAMPLER_HELP,
+    SAMPLERS,
+    keyword_options,
+)
 from walkdiff.common.arguments import count, number
 
 
@@ -38,7 +45,7 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
     p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
     p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
-    p.add_argument("--guidance", type=number(0), default=1.0, help="classifier-free guidance (1: none)")
+    p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
     p.add_argument(
         "--overlap",
         type=count(0),

@@ -74,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
         cause = _walkdiff_cause(error)
         if cause is not None:  # raised while LightningCLI built a model or data module: say it plainly
             message = str(cause)
+        elif isinstance(error, OSError) and error.filename is not None:  # a file or folder we could not use
+            from walkdiff.common.files import os_reason
+
+            message = f"{error.filename}: {os_reason(error)}"
         elif type(error).__name__ == "ArgumentError":  # LightningCLI's option and config errors
             message = f"{option_error(str(error))}; see `walkdiff {words[0]} --help`"
         else:

@@ -8,6 +8,9 @@ from walkdiff.common.arguments import count, number
 
 # diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
+# styled.generation.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
+MAX_GUIDANCE = 100.0
+GUIDANCE_HELP = f"classifier-free guidance weight in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful)"
 SAMPLER_HELP = (
     "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "
     "solved to second order, closer to DDPM at 10 steps for the same cost"

@@ -1,9 +1,11 @@
-"""Writing outputs safely: atomically (no half-written file under a final name), one writer at a time
-(a lock per output), and no temporary files left behind by a writer that was killed."""
+"""Writing outputs safely: atomically (no half-written file under a final name), a command's outputs all or
+none (`output_set`), one writer at a time (a lock per output), no temporary files left behind by a writer
+that was killed, and a write that fails (a full disk, a folder not writable) said with the file and why."""
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import fcntl
 import json
 import math
@@ -61,20 +63,116 @@ def clean_temporaries(folder: str | Path, name: str | None = None) -> list[Path]
     return removed
 
 
+def os_reason(error: OSError) -> str:
+    """Why a file operation failed, as a message says it: 'no space left on device', 'permission denied'."""
+    text = error.strerror or str(error) or type(error).__name__
+    return text[:1].lower() + text[1:]
+
+
+def write_error(path: str | Path, error: OSError):
+    """The WalkdiffError of a failed write: the file and the cause."""
+    from walkdiff.common.errors import WalkdiffError
+
+    return WalkdiffError(f"cannot write ({os_reason(error)})", path=path)
+
+
 def write_atomic(path: str | Path, save: Callable[[IO[bytes]], None]) -> Path:
-    """Let `save` write into a temporary file in the target folder, then rename it onto `path`."""
+    """Let `save` write into a temporary file in the target folder, then rename it onto `path`; inside an
+    `output_set`, the rename waits for the set to be complete. A failed write is a WalkdiffError naming
+    `path` and the cause, and leaves no temporary behind."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp = temporary_file(path)
+    staging = _STAGING.get()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, temp = temporary_file(path)
+    except OSError as error:
+        raise write_error(path, error) from None
     try:
         with os.fdopen(fd, "wb") as f:
             save(f)
         os.chmod(temp, 0o644)  # mkstemp creates 0600; outputs are meant to be shared
-        os.replace(temp, path)
-    except BaseException:
+        if staging is None:
+            os.replace(temp, path)
+        else:
+            staging.add(path, temp)
+    except BaseException as error:
         Path(temp).unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise write_error(path, error) from None
         raise
     return path
+
+
+class Outputs:
+    """The files of one command, each complete under a temporary name beside its final one until the
+    command has written them all (`output_set`)."""
+
+    def __init__(self) -> None:
+        self.staged: dict[Path, Path] = {}  # final path -> complete temporary
+
+    def add(self, path: Path, temp: Path) -> None:
+        earlier = self.staged.pop(path, None)
+        if earlier is not None:  # written twice in one run: the later one counts
+            earlier.unlink(missing_ok=True)
+        self.staged[path] = temp
+
+    def commit(self) -> None:
+        """Give every file written so far its final name."""
+        while self.staged:
+            path, temp = next(iter(self.staged.items()))
+            try:
+                os.replace(temp, path)
+            except OSError as error:
+                raise write_error(path, error) from None
+            del self.staged[path]
+
+    def discard(self) -> None:
+        for temp in self.staged.values():
+            temp.unlink(missing_ok=True)
+        self.staged.clear()
+
+
+_STAGING: contextvars.ContextVar[Outputs | None] = contextvars.ContextVar("walkdiff_outputs", default=None)
+
+
+def missing_folders(folder: Path) -> list[Path]:
+    """`folder` and those of its parents that do not exist yet, deepest first."""
+    folder = Path(folder).absolute()
+    return [p for p in (folder, *folder.parents) if not p.exists()]
+
+
+def remove_empty(folders: list[Path]) -> None:
+    """Remove the folders this run created (deepest first) where they are empty; keep any with files."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except FileNotFoundError:
+            continue
+        except OSError:  # not empty: it holds outputs, or another's files
+            return
+
+
+@contextlib.contextmanager
+def output_set(folder: str | Path) -> Iterator[Outputs]:
+    """Write a command's outputs all or none: every file written atomically inside (`write_atomic`) gets
+    its final name only once the block ends without error, so a run that fails (bad input midway, a full
+    disk, an interrupt) or is killed leaves no set without its manifest and replaces no earlier output.
+    The output `folder`, and parents of it, that this run created are removed if left empty. Inside
+    another set, it joins that one: the outer set names the files."""
+    active = _STAGING.get()
+    if active is not None:
+        yield active
+        return
+    created = missing_folders(Path(folder))
+    outputs = Outputs()
+    token = _STAGING.set(outputs)
+    try:
+        yield outputs
+        outputs.commit()
+    finally:
+        _STAGING.reset(token)
+        outputs.discard()
+        remove_empty(created)
 
 
 def link_atomic(link: str | Path, target: str | Path) -> Path:
@@ -111,10 +209,15 @@ def output_lock(path: str | Path, command: str) -> Iterator[Path]:
     from walkdiff.common.errors import WalkdiffError
 
     path = Path(path).resolve()
-    path.parent.mkdir(parents=True, exist_ok=True)
+    created = missing_folders(path.parent)  # removed again if the command leaves them empty
     lock = path.parent / f".{path.name}.lock"
     while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as error:
+            remove_empty(created)
+            raise write_error(path, error) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -145,6 +248,7 @@ def output_lock(path: str | Path, command: str) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             lock.unlink()
         os.close(fd)  # releases the flock
+        remove_empty(created)
 
 
 def check_free(paths: list[Path], overwrite: bool, option: str = "--overwrite") -> None:

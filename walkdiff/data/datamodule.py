@@ -15,6 +15,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.clips import ClipInfo, ContentSelection
 from walkdiff.data.datasets import open_source
+from walkdiff.data.folder import SPLITS
 from walkdiff.data.preprocess import ProcessedClips, detect_profile, preprocess
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, Normalizer
@@ -215,6 +216,7 @@ class MotionDataModule(WindowLoaders):
         return self.processed
 
     def prepare_data(self) -> None:
+        self._check_splits()  # before preprocessing every clip
         self._ensure_processed()
 
     def split_features(self, split: str, mirrored: bool = False) -> list[tuple[ClipInfo, str, np.ndarray]]:
@@ -234,10 +236,19 @@ class MotionDataModule(WindowLoaders):
     def setup(self, stage: str | None = None) -> None:
         if self.datasets:
             return
+        self._check_splits()
         h = self.hparams
-        train = self.split_features("train", mirrored=h.mirror)
-        self.normalizer = Normalizer.fit(np.concatenate([f for _, _, f in train]))
-        parts = {"train": train, "val": self.split_features("val"), "test": self.split_features("test")}
+        parts = {
+            split: self.split_features(split, mirrored=h.mirror and split == "train") for split in SPLITS
+        }
+        skipped = [s for s in SPLITS if not parts[s]]
+        if skipped:
+            raise WalkdiffError(
+                f"the {skipped[0]} split has no readable clip: data.on_error skip left out all its "
+                f"{len(self.splits[skipped[0]])} (see the warning above)",
+                path=self.folder,
+            )
+        self.normalizer = Normalizer.fit(np.concatenate([f for _, _, f in parts["train"]]))
         for split, clips in parts.items():
             self.datasets[split] = WindowDataset(clips, h.window, h.stride, self.normalizer)
             short = [name for _, name, f in clips if f.shape[0] < h.window]
@@ -250,6 +261,23 @@ class MotionDataModule(WindowLoaders):
                 raise WalkdiffError(
                     f"the {split} split has no {h.window}-frame windows; use a shorter data.window"
                 )
+
+    def _check_splits(self) -> None:
+        """A WalkdiffError naming the splits without a clip, how the dataset split and how to fix it
+        (a one-clip folder has only training clips: no window length gives it a validation window)."""
+        empty = [s for s in SPLITS if not self.splits[s]]
+        if empty:
+            chosen = sum(len(clips) for clips in self.splits.values())
+            selected = (
+                "" if chosen == len(self.clips) else f" ({chosen} of the contents data.contents selects)"
+            )
+            counts = ", ".join(f"{len(self.splits[s])} {s}" for s in SPLITS)
+            raise WalkdiffError(
+                f"no {' and no '.join(empty)} clip: the dataset has {len(self.clips)} clip"
+                f"{'s' * (len(self.clips) != 1)}{selected}, "
+                f"split {counts}; {self.source.empty_split_advice(empty)}",
+                path=self.folder,
+            )
 
 
 def data_settings(checkpoint: dict, **overrides) -> dict:

@@ -40,6 +40,8 @@ class MotionSource(Protocol):
 
     def load(self, clip: ClipInfo) -> Motion: ...
 
+    def empty_split_advice(self, splits: list[str]) -> str: ...
+
 
 @dataclass
 class ModuleSource:
@@ -69,6 +71,12 @@ class ModuleSource:
 
     def load(self, clip: ClipInfo) -> Motion:
         return self.module.load(clip)
+
+    def empty_split_advice(self, splits: list[str]) -> str:
+        """How to give clips to `splits` that have none (`fit`'s error)."""
+        return (
+            f"the published {self.name} split gives none: check data.contents and that data.root holds it all"
+        )
 
 
 def protocol_contents(dataset: str) -> str:

@@ -6,7 +6,8 @@ What to put in the folder:
   folders and hidden files (names starting with `.`, such as macOS's `._take.bvh`). A clip's name is its
   path relative to the folder without the suffix (`walks/take_007`): stable across machines, and what
   manifests, splits and caches refer to. All files must share one skeleton hierarchy (`walkdiff data
-  scan DIR` checks it and finds the root, feet, axes and units: `walkdiff.motion.profile`).
+  scan DIR` checks it and finds the root, feet, axes and units: `walkdiff.motion.profile`). A symbolic
+  link among them (or a manifest that is one) must point inside the folder: one that leads out is refused.
 - Optionally labels, found in this order for each clip and each of style and content:
   1. a manifest (`data.labels`: a path, relative to the folder unless absolute; without it a `labels.csv`
      or `labels.json` directly in the folder is used). CSV: a header line, then one row per clip;
@@ -35,6 +36,7 @@ import csv
 import io
 import json
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -147,6 +149,22 @@ class FolderSource:
     def load(self, clip: ClipInfo) -> Motion:
         return read_bvh(clip.path)
 
+    def empty_split_advice(self, splits: list[str]) -> str:
+        """How to give clips to `splits` that have none (`fit`'s error, `data scan`'s notes)."""
+        manifest = (
+            f"give clips the split {' or '.join(splits)} in a labels manifest's split column (file,split)"
+        )
+        if "train" in splits:  # only a manifest takes every clip of a label pair out of training
+            return f"the labels manifest's split column leaves no clip to train on: {manifest}"
+        zero = [f"data.{s}_fraction" for s in splits if getattr(self, f"{s}_fraction") == 0]
+        if zero:
+            verb, it = ("is", "it") if len(zero) == 1 else ("are", "them")
+            return f"{' and '.join(zero)} {verb} 0: set {it} above 0, or {manifest}"
+        return (
+            "clips are split per (style, content) label pair, and a pair needs 2 clips to give one to test "
+            f"and 3 to give one to val: add clips, or {manifest}"
+        )
+
     # ------------------------------------------------------------ listing and labels
 
     @property
@@ -226,12 +244,15 @@ class FolderSource:
                 raise WalkdiffError("data.labels: manifest not found (relative: in the folder)", path=path)
             if path.suffix.lower() not in (".csv", ".json"):
                 raise WalkdiffError("data.labels: expected a .csv or .json manifest", path=path)
+            refuse_link_out(self.folder, path, "the manifest")
             return path
         found = [self.folder / n for n in MANIFEST_NAMES if (self.folder / n).is_file()]
         if len(found) > 1:
             raise WalkdiffError(
                 "both labels.csv and labels.json found: set data.labels to the one to use", path=self.folder
             )
+        for path in found:
+            refuse_link_out(self.folder, path, "the manifest")
         return found[0] if found else None
 
     def _missing_error(self, column: str, missing: list[str], total: int, manifest) -> WalkdiffError:
@@ -264,6 +285,7 @@ def list_bvh_files(folder: Path) -> list[tuple[str, Path]]:
             continue
         if not path.is_file():
             continue
+        refuse_link_out(folder, path, "a clip")
         name = relative.with_suffix("").as_posix()
         if name in found:
             raise WalkdiffError(
@@ -274,6 +296,22 @@ def list_bvh_files(folder: Path) -> list[tuple[str, Path]]:
     if not found:
         raise WalkdiffError("no .bvh files found in this folder or below it", path=folder)
     return list(found.items())
+
+
+def refuse_link_out(folder: Path, path: Path, what: str) -> None:
+    """WalkdiffError when `path`, inside `folder` by name, is a symbolic link (or lies below one) that
+    leads out of it. A folder from elsewhere must not make walkdiff open, and quote in its errors, any
+    file this user can read; links that stay inside, and paths named outside on purpose, are fine."""
+    base = Path(os.path.abspath(folder))
+    if not Path(os.path.abspath(path)).is_relative_to(base):
+        return  # data.labels given as an absolute or ../ path: the user named that file
+    target = path.resolve()
+    if not target.is_relative_to(base.resolve()):
+        raise WalkdiffError(
+            f"{what} is a symbolic link to {target}, outside the dataset folder {base}: refused "
+            "(copy the file into the folder, or link to a file inside it)",
+            path=path,
+        )
 
 
 def check_fractions(val_fraction: float, test_fraction: float) -> None:

@@ -64,7 +64,7 @@ def detect_profile(source: MotionSource, clips: list[ClipInfo]) -> SkeletonProfi
     """The dataset's skeleton profile, from its first clip and the source's overrides."""
     if not clips:
         raise WalkdiffError("no clips to find the skeleton profile from", path=source.folder)
-    return SkeletonProfile.detect(source.load(clips[0]), source.profile)
+    return SkeletonProfile.detect(source.load(clips[0]), source.profile, clips[0].path)
 
 
 def _process_clip(source: MotionSource, profile: dict, clip: ClipInfo, fps: float, mirror: bool):

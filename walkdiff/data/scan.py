@@ -147,7 +147,7 @@ def _read_clips(source: FolderSource, clips) -> _Found:
     for clip in bar:
         motion = source.load(clip)
         if skeleton_profile is None:
-            skeleton_profile = SkeletonProfile.detect(motion, source.profile)
+            skeleton_profile = SkeletonProfile.detect(motion, source.profile, clip.path)
         skeleton_profile.check(motion.skeleton, clip.path)
         frames.append(motion.num_frames)
         frame_times.append(motion.frame_time)
@@ -189,9 +189,11 @@ def _report(folder: Path, source: FolderSource, clips, found: _Found, suggested:
         notes.append(
             f"{short} clips are shorter than the window ({suggested.window} frames) and are not trained on"
         )
-    for split in ("val", "test"):
-        if not splits[split]:
-            notes.append(f"no {split} clips: a label pair needs 2 (test) or 3 (val) clips, or a split column")
+    empty = [split for split in SPLITS if not splits[split]]
+    if empty:
+        notes.append(
+            f"no {' and no '.join(empty)} clips, which training needs: {source.empty_split_advice(empty)}"
+        )
     lines.append("Notes:" if notes else "Notes: none")
     lines += [f"  - {note}" for note in notes]
 

@@ -39,6 +39,7 @@ from walkdiff.evaluation.scorer import (
     window_set,
 )
 from walkdiff.metrics import format_summary, summarize, summarize_runs
+from walkdiff.metrics.protocol import NON_NEGATIVE
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +106,8 @@ def evaluate(
             path=evaluator,
         )
 
+    _check_num(num, scorer_model.spec, dm.selection.names)
+
     scorer = MotionScorer(scorer_model, dm.skeleton, spec.fps, batch_size=batch_size)
     reference = scorer.embed(window_set(dm.split_features(split), spec.window, stride))
     train = scorer.embed(
@@ -152,13 +155,25 @@ def evaluate(
             "clips": {split: len(reference.clip.unique()), "train": len(train.clip.unique())},
         },
         "rows": {name: summarize_runs(runs) for name, runs in rows.items()},
-        f"fmd_{split}_halves": summarize(halves),
+        f"fmd_{split}_halves": summarize(halves, NON_NEGATIVE),
         "elapsed_s": round(time.perf_counter() - started, 1),
     }
     write_reports(report, Path(out))
     if mlflow_experiment:
         log_to_mlflow(report, Path(out), mlflow_experiment)
     return report
+
+
+def _check_num(num: int, spec: dict, contents: list[str]) -> None:
+    """Before anything is generated: multimodality pairs windows of one style (of one content without
+    styles), so --num must give every one of them 2 windows; generated windows cycle over them."""
+    styled = len(spec["styles"]) > 1
+    kind, classes = ("style", len(spec["styles"])) if styled else ("content group", len(contents))
+    if num < 2 * classes:
+        raise WalkdiffError(
+            f"--num {num} is too small: multimodality pairs windows of one {kind}, and {num} windows give "
+            f"some of the {classes} {kind}s fewer than 2; the smallest --num that works is {2 * classes}"
+        )
 
 
 def _generator_and_data(evaluator, ckpt, scorer_model, contents: str | None, device):
@@ -222,7 +237,8 @@ def format_report(report: dict) -> str:
         f"{d['fps']:g} fps; {split}: {d['windows'][split]} windows from {d['clips'][split]} clips, "
         f"train: {d['windows']['train']} windows from {d['clips']['train']} clips (stride {s['stride']})",
         f"- {s['num']} windows per repeat, {s['repeats']} repeats, seed {s['seed']}; "
-        f"every value is mean ± 1.96·σ/√{s['repeats']}",
+        f"every value is mean ± 1.96·σ/√{s['repeats']}, or mean [low, high] where that interval is cut "
+        "to the metric's range (an accuracy stays in [0, 1])",
         "",
         "| | " + " | ".join(METRICS[m][0] for m in shown) + " |",
         "|---|" + "---:|" * len(shown),

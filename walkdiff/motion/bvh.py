@@ -20,6 +20,14 @@ from walkdiff.motion.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Motio
 
 # Channel names are matched case-insensitively (some exporters write XROTATION) and stored canonically.
 _CHANNEL_NAMES = {name.lower(): name for name in POSITION_CHANNELS + ROTATION_CHANNELS}
+# Errors quote at most this many characters of a file, and only once it has started like a BVH file: a
+# path mistyped onto another file (a key, a password file) must not be echoed.
+QUOTE_LIMIT = 24
+
+
+def quoted(text: str) -> str:
+    """`text` quoted for an error message, cut to QUOTE_LIMIT characters."""
+    return repr(text if len(text) <= QUOTE_LIMIT else text[: QUOTE_LIMIT - 1] + "…")
 
 
 def values_per_frame(skeleton: Skeleton) -> int:
@@ -97,7 +105,7 @@ class _HierarchyParser:
     def keyword(self, word: str, expected: str | None = None) -> int:
         token, line = self.take(expected or word)
         if token.upper() != word.upper():
-            raise self.error(f"expected {expected or word}, found {token!r}", line)
+            raise self.error(f"expected {expected or word}, found {quoted(token)}", line)
         return line
 
     def rest_of_line(self, line: int) -> list[str]:
@@ -112,18 +120,21 @@ class _HierarchyParser:
         try:
             value = float(token)
         except ValueError:
-            raise self.error(f"expected a number for {what}, found {token!r}", line) from None
+            raise self.error(f"expected a number for {what}, found {quoted(token)}", line) from None
         if not np.isfinite(value):
-            raise self.error(f"expected a finite number for {what}, found {token!r}", line)
+            raise self.error(f"expected a finite number for {what}, found {quoted(token)}", line)
         return value
 
     def parse(self) -> Skeleton:
-        self.keyword("HIERARCHY")
+        token, line = self.take("HIERARCHY")
+        if token.upper() != "HIERARCHY":  # not a BVH file: none of it is quoted
+            raise self.error("not a BVH file: expected one starting with HIERARCHY", line)
         self.keyword("ROOT")
         self.joint(parent=-1, line=self.tokens[self.pos - 1][1])
         if self.pos < len(self.tokens):
             token, line = self.tokens[self.pos]
-            msg = f"expected MOTION after the root joint's closing '}}', found {token!r} (unbalanced braces?)"
+            msg = f"expected MOTION after the root joint's closing '}}', found {quoted(token)}"
+            msg += " (unbalanced braces?)"
             raise self.error(msg, line)
         return Skeleton(self.names, self.parents, self.offsets, self.channels, self.end_sites)
 
@@ -132,15 +143,15 @@ class _HierarchyParser:
         if not name:
             raise self.error("expected a joint name after ROOT/JOINT", line)
         if name in self.names:
-            raise self.error(f"duplicate joint name {name!r}: expected unique joint names", line)
+            raise self.error(f"duplicate joint name {quoted(name)}: expected unique joint names", line)
         index = len(self.names)
         self.names.append(name)
         self.parents.append(parent)
-        opened = self.keyword("{", f"'{{' opening joint {name!r}")
-        self.offsets.append(self.offset(f"OFFSET of joint {name!r}"))
+        opened = self.keyword("{", f"'{{' opening joint {quoted(name)}")
+        self.offsets.append(self.offset(f"OFFSET of joint {quoted(name)}"))
         self.channels.append(self.channel_list(name) if (self.peek() or "").upper() == "CHANNELS" else ())
         while True:
-            expected = f"JOINT, End Site or '}}' closing joint {name!r} (opened at line {opened})"
+            expected = f"JOINT, End Site or '}}' closing joint {quoted(name)} (opened at line {opened})"
             token, line = self.take(expected)
             if token == "}":
                 return
@@ -149,7 +160,7 @@ class _HierarchyParser:
             elif token.upper() == "END":
                 self.end_site(index, name, line)
             else:
-                raise self.error(f"expected {expected}, found {token!r}", line)
+                raise self.error(f"expected {expected}, found {quoted(token)}", line)
 
     def offset(self, what: str) -> list[float]:
         self.keyword("OFFSET", what)
@@ -158,30 +169,34 @@ class _HierarchyParser:
     def end_site(self, joint: int, name: str, line: int) -> None:
         self.keyword("Site", "'Site' after 'End'")
         if joint in self.end_sites:
-            raise self.error(f"second End Site in joint {name!r}: expected at most one per joint", line)
+            raise self.error(f"second End Site in joint {quoted(name)}: expected at most one per joint", line)
         self.keyword("{", "'{' opening the End Site")
-        self.end_sites[joint] = np.array(self.offset(f"OFFSET of the End Site of {name!r}"))
-        self.keyword("}", f"'}}' closing the End Site of {name!r}")
+        self.end_sites[joint] = np.array(self.offset(f"OFFSET of the End Site of {quoted(name)}"))
+        self.keyword("}", f"'}}' closing the End Site of {quoted(name)}")
 
     def channel_list(self, name: str) -> tuple[str, ...]:
         line = self.take("CHANNELS")[1]
         same_line = self.pos < len(self.tokens) and self.tokens[self.pos][1] == line
-        count_token = self.peek() if same_line else None
-        if count_token is None or not count_token.isdigit() or int(count_token) > 6:
-            raise self.error(f"bad CHANNELS count {count_token!r}: expected a whole number from 0 to 6", line)
+        count_token = (self.peek() if same_line else None) or ""
+        if not count_token.isdigit() or int(count_token) > 6:
+            shown = quoted(count_token) if count_token else "(none)"
+            raise self.error(f"bad CHANNELS count {shown}: expected a whole number from 0 to 6", line)
         self.pos += 1
         found = self.rest_of_line(line)
         unknown = [c for c in found if c.lower() not in _CHANNEL_NAMES]
         if unknown:
             allowed = ", ".join(POSITION_CHANNELS + ROTATION_CHANNELS)
-            msg = f"unknown channel name {unknown[0]!r} in joint {name!r}: expected one of {allowed}"
+            msg = f"unknown channel name {quoted(unknown[0])} in joint {quoted(name)}: "
+            msg += f"expected one of {allowed}"
             raise self.error(msg, line)
         if len(found) != int(count_token):
             msg = f"bad CHANNELS count: expected {count_token} channel names after it, found {len(found)}"
             raise self.error(msg, line)
         channels = tuple(_CHANNEL_NAMES[c.lower()] for c in found)
         if len(set(channels)) != len(channels):
-            raise self.error(f"repeated channel in joint {name!r}: expected each channel at most once", line)
+            raise self.error(
+                f"repeated channel in joint {quoted(name)}: expected each channel at most once", line
+            )
         return channels
 
 
@@ -209,7 +224,7 @@ def _parse_motion(
     except ValueError:
         frame_time = float("nan")
     if not frame_time > 0 or not np.isfinite(frame_time):
-        msg = f"expected a positive number of seconds for Frame Time, found {fields[2]!r}"
+        msg = f"expected a positive number of seconds for Frame Time, found {quoted(fields[2])}"
         raise WalkdiffError(msg, path=path, line=time_line)
 
     num_channels = values_per_frame(skeleton)
@@ -241,7 +256,7 @@ def _raise_bad_value(rows: list[tuple[int, list[str]]], path: str | Path) -> Non
             except ValueError:
                 ok = False
             if not ok:
-                msg = f"expected a number for value {k} of the frame, found {token!r}"
+                msg = f"expected a number for value {k} of the frame, found {quoted(token)}"
                 raise WalkdiffError(msg, path=path, line=n)
 
 

@@ -13,6 +13,7 @@ from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.mirror import mirror
 from walkdiff.motion.profile import SkeletonProfile
+from walkdiff.motion.profile_detection import NO_FEET
 from walkdiff.motion.representation import decode, encode, foot_contacts, start_pose
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
@@ -42,16 +43,16 @@ def suspicious(motion: Motion, world: np.ndarray, height: float) -> list[str]:
     return notes
 
 
-def file_profile(motion: Motion, profile: str | None) -> SkeletonProfile:
-    """The clip's own profile, with the overrides of a YAML/JSON file (`--profile`) when given."""
+def file_profile(motion: Motion, profile: str | None, path: str | Path) -> SkeletonProfile:
+    """The profile of the clip read from `path`, with the overrides of a YAML/JSON file (`--profile`)."""
     overrides = read_config(profile, "--profile") if profile else {}
-    return SkeletonProfile.detect(motion, overrides)
+    return SkeletonProfile.detect(motion, overrides, path)
 
 
 def inspect_file(path: str, profile: str | None = None) -> str:
     motion = read_bvh(path)
     skeleton = motion.skeleton
-    found = file_profile(motion, profile)
+    found = file_profile(motion, profile, path)
     canonical = found.to_canonical(motion)
     world = motion_world_positions(canonical)
     contacts = foot_contacts(canonical, found.contacts) if found.feet else None
@@ -105,7 +106,7 @@ def convert_file(
     if Path(target).exists() and not overwrite:
         raise WalkdiffError("the output exists; pass --overwrite to replace it", path=target)
     motion = read_bvh(source)
-    found = file_profile(motion, profile)
+    found = file_profile(motion, profile, source)
     canonical = found.to_canonical(motion)
     if fps is not None:
         canonical = resample(canonical, fps)
@@ -121,6 +122,10 @@ def convert_file(
         write_glb(target, canonical, found.metres_per_unit)
         frames = f"{canonical.num_frames} frames at {canonical.fps:g} fps"
         return f"wrote {target}: {frames}, glTF (Y up, metres){mirrored}"
+    if not found.feet:  # the features' contact labels need them; glTF takes the clip as it is
+        raise WalkdiffError(
+            f"converting to BVH goes through the features: {NO_FEET} (or write .glb)", path=source
+        )
     features = encode(canonical, found)
     position, heading = start_pose(canonical, found)
     out = found.to_file(decode(features, canonical.skeleton, canonical.frame_time, position, heading))

@@ -29,9 +29,10 @@ class Polyline:
     @classmethod
     def of(cls, points) -> Polyline:
         points = np.asarray(points, dtype=np.float64)
-        keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9])
-        points = points[keep]  # repeated points would give zero-length segments
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        with np.errstate(over="ignore"):  # points too far apart make an infinite length, refused by callers
+            keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9])
+            points = points[keep]  # repeated points would give zero-length segments
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
         return cls(points, s)
 
     @property
@@ -116,6 +117,8 @@ def checked_polyline(points, path: str | Path | None = None) -> Polyline:
     polyline = Polyline.of(points)
     if polyline.length <= 0:
         raise WalkdiffError("the path has no length: all its points coincide", path=path)
+    if not math.isfinite(polyline.length):
+        raise WalkdiffError("the path's length overflows: expected coordinates in metres", path=path)
     return polyline
 
 
@@ -126,6 +129,11 @@ def write_path(path: str | Path, points: np.ndarray, speed: float | None = None)
 
 def frames_for(path: Polyline, speed: float, fps: float) -> int:
     """Frames to walk the whole path at `speed`."""
+    return frames_for_length(path.length, speed, fps)
+
+
+def frames_for_length(length: float, speed: float, fps: float) -> int:
+    """Frames to walk `length` at `speed`, both ends included."""
     # A hair of tolerance: speeds are float32 tensors and paths converted from metres, so a walk of a
     # whole number of frames may come out a millionth of a frame longer.
-    return max(2, math.ceil(path.length / speed * fps - 1e-4) + 1)
+    return max(2, math.ceil(length / speed * fps - 1e-4) + 1)

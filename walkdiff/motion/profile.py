@@ -17,6 +17,7 @@ non-body joints when they are static, as the profile found them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -78,9 +79,17 @@ class SkeletonProfile:
     notes: tuple[str, ...] = ()  # anything suspicious
 
     @classmethod
-    def detect(cls, motion: Motion, overrides: dict | None = None) -> SkeletonProfile:
-        """The profile of `motion`'s skeleton; `overrides` (config) win over detection."""
-        return cls(skeleton=motion.skeleton, **detect_fields(motion, overrides))
+    def detect(
+        cls, motion: Motion, overrides: dict | None = None, path: str | Path | None = None
+    ) -> SkeletonProfile:
+        """The profile of `motion`'s skeleton; `overrides` (config) win over detection. Errors name
+        `path`, the file `motion` was read from, when given."""
+        try:
+            return cls(skeleton=motion.skeleton, **detect_fields(motion, overrides))
+        except WalkdiffError as error:
+            if path is None or error.path is not None:
+                raise
+            raise WalkdiffError(error.reason, path=path) from error
 
     # ------------------------------------------------------------ what the representation reads
 

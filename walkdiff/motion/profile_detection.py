@@ -431,7 +431,14 @@ class _Detection:
             self.found["body_height"] = "config"
             return _positive(self.overrides["body_height"], "profile.body_height")
         self.found["body_height"] = "rest pose, heel to top, stood upright"
-        return body_height(self.rest, self.skeleton, root, self._heels(feet), feet)
+        height = body_height(self.rest, self.skeleton, root, self._heels(feet), feet)
+        if not height > 0:  # one joint without an end site, or all offsets zero: units would divide by 0
+            raise WalkdiffError(
+                "the rest pose is a single point (every joint and end site at the root), so it has no body "
+                "height to find the units and contact thresholds from: give the profile a body_height in "
+                "file units (--profile FILE, or data.profile)"
+            )
+        return height
 
     def units(self, height: float) -> tuple[float, str]:
         """Metres per unit and the units' name."""

@@ -48,6 +48,15 @@ class ViewedClip:
         pose = self.pose(seconds)
         return np.stack([pose[self.parents[joints]], pose[joints]], axis=1)
 
+    @property
+    def has_bones(self) -> bool:
+        return bool((self.parents >= 0).any())
+
+    def drawn(self, seconds: float) -> np.ndarray:
+        """What the page draws at a time: the bones' end points, or the joint of a one-joint clip (a
+        moving point)."""
+        return self.segments(seconds) if self.has_bones else self.pose(seconds)
+
     def label_position(self, seconds: float) -> tuple[float, float, float]:
         """Over the head, above the root."""
         pose = self.pose(seconds)
@@ -57,13 +66,13 @@ class ViewedClip:
 def load_clip(path: str | Path, profile: str | None = None) -> ViewedClip:
     path = Path(path)
     motion = read_bvh(path)
-    found = file_profile(motion, profile)
+    found = file_profile(motion, profile, path)
     canonical = found.to_canonical(motion)
     world = motion_world_positions(canonical) * found.metres_per_unit
     parents = canonical.skeleton.parents
     sides = [side or CENTRE for side in limb_sides(canonical.skeleton.names)]
     joints = np.flatnonzero(parents >= 0)
-    colors = np.array([[sides[j], sides[j]] for j in joints], dtype=np.uint8)
+    colors = np.array([[sides[j], sides[j]] for j in joints], dtype=np.uint8).reshape(-1, 2, 3)
     return ViewedClip(path.stem, world, parents, colors, canonical.fps)
 
 
@@ -135,9 +144,11 @@ def view(paths: list[str], host: str = "127.0.0.1", port: int = 8080, profile: s
     server.scene.add_grid("/ground", width=40.0, height=40.0, plane="xz", cell_size=0.5, section_size=1.0)
     bones, labels = [], []
     for i, clip in enumerate(clips):
-        bones.append(
-            server.scene.add_line_segments(f"/clip{i}", clip.segments(0.0), clip.colors, thickness=0.03)
-        )
+        if clip.has_bones:
+            handle = server.scene.add_line_segments(f"/clip{i}", clip.drawn(0.0), clip.colors, thickness=0.03)
+        else:  # one joint, no bones: viser's line segments assert there is one at least
+            handle = server.scene.add_point_cloud(f"/clip{i}", clip.drawn(0.0), CENTRE, point_size=0.08)
+        bones.append(handle)
         labels.append(server.scene.add_label(f"/label{i}", clip.name, position=clip.label_position(0.0)))
     longest = max(c.duration for c in clips)
     server.gui.add_markdown(
@@ -156,7 +167,7 @@ def view(paths: list[str], host: str = "127.0.0.1", port: int = 8080, profile: s
                 scrub.value = float((scrub.value + (now - last) * speed.value) % longest)
             last = now
             for clip, handle, label in zip(clips, bones, labels, strict=True):
-                handle.points = clip.segments(scrub.value)
+                handle.points = clip.drawn(scrub.value)
                 label.position = clip.label_position(scrub.value)
             time.sleep(1 / 30)
     finally:

@@ -3,18 +3,20 @@ manifest or report.
 
 The clips are what `StyledGenerator` (styled/pipeline.py) returns to Python for the same seed and
 settings; this module adds the files: names from the style label, no overwriting unasked, GIF and MP4
-previews of the first seconds, and the JSON that records how they were made.
+previews of the first seconds, and the JSON that records how they were made. A command's files are
+written all or none (`output_set`): a run that fails midway leaves no clip without its manifest.
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from walkdiff.common.files import check_free, output_folder, write_json
+from walkdiff.common.files import check_free, output_folder, output_set, write_json
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.skeleton import Motion
@@ -89,35 +91,35 @@ def sample(
     started = time.perf_counter()
     clips = generator.generate(request, num, frames, seed, ground, fix_feet)
     generated = time.perf_counter() - started
-    out.mkdir(parents=True, exist_ok=True)
-    for path, clip in zip(bvh, clips, strict=True):
-        _write_clip(model, path, clip, f"{request.label} {content}", cap)
-    manifest = {
-        "command": "sample",
-        "checkpoint": str(ckpt),
-        "settings": {
-            "style": style,
-            "content": content,
-            "num": num,
-            "frames": frames,
-            "fps": model.spec["fps"],
-            **asdict(sampling),
-            "overlap": request.overlap,
-            "blend": request.blend,
-            "ground": ground,
-            "fix_feet": fix_feet,
-            "distilled_jumps": model.jumps(sampler, steps, eta) is not None,
-        },
-        "seed": seed,
-        "files": [p.name for p in bvh],
-        "preview": None if cap is None else cap.describe(frames, model.spec["fps"]),
-        "timing": {
-            "generate_s": round(generated, 3),
-            "write_s": round(time.perf_counter() - started - generated, 3),
-            "generated_frames_per_s": round(num * frames / generated, 1),
-        },
-    }
-    write_json(manifest_path, manifest)
+    with output_set(out):
+        for path, clip in zip(bvh, clips, strict=True):
+            _write_clip(model, path, clip, f"{request.label} {content}", cap)
+        manifest = {
+            "command": "sample",
+            "checkpoint": str(ckpt),
+            "settings": {
+                "style": style,
+                "content": content,
+                "num": num,
+                "frames": frames,
+                "fps": model.spec["fps"],
+                **asdict(sampling),
+                "overlap": request.overlap,
+                "blend": request.blend,
+                "ground": ground,
+                "fix_feet": fix_feet,
+                "distilled_jumps": model.jumps(sampler, steps, eta) is not None,
+            },
+            "seed": seed,
+            "files": [p.name for p in bvh],
+            "preview": None if cap is None else cap.describe(frames, model.spec["fps"]),
+            "timing": {
+                "generate_s": round(generated, 3),
+                "write_s": round(time.perf_counter() - started - generated, 3),
+                "generated_frames_per_s": round(num * frames / generated, 1),
+            },
+        }
+        write_json(manifest_path, manifest)
     return manifest
 
 
@@ -153,6 +155,9 @@ def transfer(
     noised_steps(model, strength, sampling)  # bad strength fails before any work
     input = Path(input)
     motion = generator.source(input)
+    short = generator.window_note(motion, input)
+    if short is not None:
+        print(f"walkdiff: warning: {short}", file=sys.stderr)
     out = output_folder(out)
     target = out / f"{input.stem}_to_{request.label}.bvh"
     report_path = target.with_suffix(".json")
@@ -162,32 +167,33 @@ def transfer(
     started = time.perf_counter()
     result = generator.restyled(request, motion, strength, keep_trajectory, seed, ground, fix_feet)
     elapsed = time.perf_counter() - started
-    out.mkdir(parents=True, exist_ok=True)
-    _write_clip(model, target, result, request.label, cap, others=((motion, "source"),))
-    report = {
-        "command": "transfer",
-        "checkpoint": str(ckpt),
-        "input": str(input),
-        "settings": {
-            "style": style,
-            "content": content,
-            "strength": strength,
-            "keep_trajectory": keep_trajectory,
-            "frames": motion.num_frames,
-            "fps": model.spec["fps"],
-            **asdict(sampling),
-            "overlap": request.overlap,
-            "blend": request.blend,
-            "ground": ground,
-            "fix_feet": fix_feet,
-        },
-        "seed": seed,
-        "file": target.name,
-        "preview": None if cap is None else cap.describe(motion.num_frames, model.spec["fps"], panels=2),
-        "root_path_error": root_path_error(motion, result),
-        "timing": {"restyle_s": round(elapsed, 3)},
-    }
-    write_json(report_path, report)
+    with output_set(out):
+        _write_clip(model, target, result, request.label, cap, others=((motion, "source"),))
+        report = {
+            "command": "transfer",
+            "checkpoint": str(ckpt),
+            "input": str(input),
+            "settings": {
+                "style": style,
+                "content": content,
+                "strength": strength,
+                "keep_trajectory": keep_trajectory,
+                "frames": motion.num_frames,
+                "fps": model.spec["fps"],
+                **asdict(sampling),
+                "overlap": request.overlap,
+                "blend": request.blend,
+                "ground": ground,
+                "fix_feet": fix_feet,
+            },
+            "seed": seed,
+            "file": target.name,
+            "preview": None if cap is None else cap.describe(motion.num_frames, model.spec["fps"], panels=2),
+            "root_path_error": root_path_error(motion, result),
+            "warnings": [] if short is None else [short],
+            "timing": {"restyle_s": round(elapsed, 3)},
+        }
+        write_json(report_path, report)
     return report
 
 

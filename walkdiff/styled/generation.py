@@ -30,6 +30,9 @@ from walkdiff.motion.representation import FeatureLayout, features_to_positions
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]
+# Guidance weights that still make motion are a few (1: none); far above, every sample is garbage and
+# weights like 1e30 overflow to NaN. cli/options.py repeats it so that the parser imports no torch.
+MAX_GUIDANCE = 100.0
 
 
 @dataclass(frozen=True)
@@ -44,8 +47,11 @@ class Sampling:
 
     def __post_init__(self) -> None:
         SamplerChoice(self.sampler, self.steps, self.eta)  # its checks and messages: sampler, steps, eta
-        if not math.isfinite(self.guidance):
-            raise WalkdiffError(f"--guidance must be a finite number, got {self.guidance}")
+        if not (math.isfinite(self.guidance) and 0 <= self.guidance <= MAX_GUIDANCE):
+            raise WalkdiffError(
+                f"--guidance must be a number in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful), "
+                f"got {self.guidance:g}"
+            )
 
     @property
     def order(self) -> int:

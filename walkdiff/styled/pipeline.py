@@ -8,6 +8,7 @@ seed and settings. The windows, samplers and transfer themselves are in styled/g
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,6 +54,30 @@ def check_sample_size(num: int, frames: int) -> None:
         raise WalkdiffError(f"--num must be at least 1, got {num}")
     if frames >= 1:  # window_plan names a bad --frames
         check_frames("--frames", frames, SAMPLE_BYTES_PER_FRAME, num)
+
+
+def check_finite(clips: list[Motion], sampling: Sampling) -> None:
+    """Refuse clips with NaN or infinite values, naming the setting that made them: no such clip is ever
+    returned or written (a BVH of NaN reads as motion in no program)."""
+    bad = [
+        i
+        for i, clip in enumerate(clips)
+        if not (np.isfinite(clip.rotations).all() and np.isfinite(clip.positions).all())
+    ]
+    if not bad:
+        return
+    which = (
+        f"clip {bad[0]}" if len(clips) == 1 else f"{len(bad)} of {len(clips)} clips, the first clip {bad[0]}"
+    )
+    if sampling.guidance != 1:
+        raise WalkdiffError(
+            f"--guidance {sampling.guidance:g} made non-finite motion (NaN or infinite values in {which}); "
+            "use a lower guidance (1: none; a few at most is useful)"
+        )
+    raise WalkdiffError(
+        f"the model made non-finite motion (NaN or infinite values in {which}, sampler {sampling.sampler}): "
+        "its network may have diverged in training; try another checkpoint"
+    )
 
 
 def _batch(labels: torch.Tensor, count: int) -> torch.Tensor:
@@ -121,6 +146,9 @@ class StyledGenerator(Pipeline):
         `style`; `keep_trajectory` keeps its root path exactly."""
         request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
         source = self.source(motion)
+        short = self.window_note(source, motion if isinstance(motion, str | os.PathLike) else "the clip")
+        if short is not None:
+            warnings.warn(short, stacklevel=2)
         result = self.restyled(request, source, strength, keep_trajectory, seed, ground, fix_feet)
         return self.take(result)
 
@@ -150,7 +178,26 @@ class StyledGenerator(Pipeline):
         if abs(motion.fps - self.fps) > 1e-3 * self.fps:
             motion = resample(motion, self.fps)
         check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
+        if motion.num_frames < 2:  # one pose: no motion, and the root velocities it is made of are 0
+            raise WalkdiffError(
+                f"{motion.num_frames} frame at the model's {self.fps:g} fps: expected at least 2 frames of "
+                "motion to restyle",
+                path=path,
+            )
         return motion
+
+    def window_note(self, source: Motion, where: str | os.PathLike) -> str | None:
+        """What a transfer of a clip shorter than the model's window should say: it is restyled as one
+        window of its own length, shorter than any the model was trained on. None for longer clips."""
+        window, frames = self.model.spec["window"], source.num_frames
+        if frames >= window:
+            return None
+        return (
+            f"{where}: {frames} frames at the model's {self.fps:g} fps ({frames / self.fps:.2f} s), shorter "
+            f"than its {window}-frame window ({window / self.fps:.2f} s): restyled as one {frames}-frame "
+            f"window, shorter than any it was trained on, so the style may come out weak (give at least "
+            f"{window / self.fps:.2f} s of motion)"
+        )
 
     def generate(
         self, request: Request, num: int, frames: int, seed: int, ground: bool, fix_feet: bool
@@ -162,7 +209,9 @@ class StyledGenerator(Pipeline):
             model, _batch(request.style, num), _batch(request.content, num), frames, request.sampling,
             generator, request.overlap, request.blend,
         )  # fmt: skip
-        return [self._decoded(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
+        clips = [self._decoded(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
+        check_finite(clips, request.sampling)
+        return clips
 
     def restyled(
         self,
@@ -182,7 +231,9 @@ class StyledGenerator(Pipeline):
             model, features, _batch(request.style, 1), _batch(request.content, 1), strength, request.sampling,
             generator, keep_trajectory, request.overlap, request.blend,
         )  # fmt: skip
-        return self._decoded(model.to_raw(x, ground)[0], start_pose(source, model.profile), fix_feet)
+        result = self._decoded(model.to_raw(x, ground)[0], start_pose(source, model.profile), fix_feet)
+        check_finite([result], request.sampling)
+        return result
 
     def _decoded(self, raw: np.ndarray, start: tuple[np.ndarray, float] | None, fix_feet: bool) -> Motion:
         """Features in data units (F, D) -> a canonical clip, feet pinned during contacts if asked."""
