@@ -44,6 +44,7 @@ CHECKPOINT_USERS = [
     ["evaluate", "--out", "o", "--evaluator", "garbage.ckpt"],
     ["evaluate-gesture", "--out", "o"],
     ["distill", "--out", "student.ckpt"],
+    ["export", "--out", "exported"],
 ]
 
 CASES = {
@@ -87,6 +88,10 @@ CASES = {
     "sample an unknown sampler": (
         ["sample", "--ckpt", "g", "--out", "o", *STYLE, "--sampler", "x"],
         ["--sampler"],
+    ),
+    "sample at a guidance of 1e30": (
+        ["sample", "--ckpt", "g", "--out", "o", *STYLE, "--guidance", "1e30"],
+        ["--guidance", "[0, 100]", "1e30"],
     ),
     "transfer at strength 1.5": (
         ["transfer", "--ckpt", "g", "--out", "o", "--input", "i", *STYLE, "--strength", "1.5"],
@@ -154,6 +159,22 @@ CASES = {
     "inspect a one-point skeleton": (["inspect", "point.bvh"], ["point.bvh", "body_height"]),
     "convert a one-point skeleton": (["convert", "point.bvh", "o.glb"], ["point.bvh", "body_height"]),
     "view a one-point skeleton": (["view", "point.bvh", "--port", "0"], ["point.bvh", "body_height"]),
+    "upgrade without --trust": (
+        ["checkpoint", "upgrade", "garbage.ckpt", "--out", "new.ckpt"],
+        ["garbage.ckpt", "--trust"],
+    ),
+    "upgrade a missing file": (
+        ["checkpoint", "upgrade", "missing.ckpt", "--out", "new.ckpt", "--trust"],
+        ["missing.ckpt"],
+    ),
+    "upgrade a file that is not a checkpoint": (
+        ["checkpoint", "upgrade", "text.bvh", "--out", "new.ckpt", "--trust"],
+        ["text.bvh", "not a readable checkpoint"],
+    ),
+    "upgrade onto itself": (
+        ["checkpoint", "upgrade", "garbage.ckpt", "--out", "garbage.ckpt", "--trust"],
+        ["--out", "another file"],
+    ),
     "an unknown option": (["sample", "--ckpt", "g", "--out", "o", *STYLE, "--colour", "red"], ["--colour"]),
 }
 for command in CHECKPOINT_USERS:

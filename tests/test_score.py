@@ -307,6 +307,13 @@ def test_real_windows_are_cached_with_the_evaluator(setup, tmp_path, monkeypatch
     assert "unreadable cache of embedded windows" in caplog.text and not list(cache.glob(".*.tmp"))
 
 
+def test_real_clips_carry_their_own_content(setup):  # noqa: F811
+    """A clip's content indexes the dataset's groups: read as an index into the chosen contents, a run
+    clip was out of range (or another group) unless the choice began with walk, run."""
+    scorer = ClipScorer(setup["ckpt"], setup["root"], setup["cache"], contents="run")
+    assert {clip.content for clip in scorer.real_clips("test")} == {"run"}
+
+
 def _manifest(path: Path, rows: list[tuple[str, str, str]]) -> Path:
     with path.open("w", newline="") as f:
         writer = csv.writer(f)

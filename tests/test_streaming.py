@@ -384,6 +384,69 @@ def test_walk_stream_bad_line_names_it(walker_ckpt, tmp_path, monkeypatch, capsy
     assert not list(tmp_path.glob("*.bvh"))
 
 
+def test_a_streamed_point_too_far_for_memory_is_refused_by_its_line(
+    walker_ckpt, tmp_path, monkeypatch, capsys
+):
+    """A streamed path is capped as `walk --path FILE` caps a path file, at the point that asks too much
+    (one at 1e30 m was walked towards without end, at full CPU, with nothing said)."""
+    stream = WalkStream(load_walker(walker_ckpt), 1, 12.0)
+    with pytest.raises(WalkdiffError, match=r"the path up to this point: \d+ frames would need about"):
+        stream.feed([[0, 0], [0, 5], [0, 1e30], [0, 6]])
+    assert len(stream.points) == 2 and stream.path.length == 5  # the points before it are kept
+    with pytest.raises(WalkdiffError, match=r"expected a path point of finite numbers, got \[nan, 0.0\]"):
+        stream.feed([[float("nan"), 0]])
+
+    lines = b'{"x": 0, "z": 0}\n{"x": 0, "z": 0.2}\n{"x": 0, "z": 1e30}\n'
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(lines)))
+    args = ["walk", "--stream", "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "1", "--path", "-"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("walkdiff: error: -:3: the path up to this point: "), err
+    assert "above the limit of 4.00 GB" in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_walk_stream_gone_bad_midway_keeps_the_frames_made(walker_ckpt, tmp_path, monkeypatch, capsys):
+    """A bad line after some frames: the BVH of those frames is written, the last JSON line and the
+    error say so, and the points before the bad line in the same read still walk."""
+    lines = "".join(json.dumps({"x": 0.0, "z": 0.1 * k}) + "\n" for k in range(31))  # 3 m
+    lines += '{"x": 0, "z": "far"}\n'
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(lines.encode())))
+    out = tmp_path / "out"
+    args = ["walk", "--stream", "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--path", "-"]
+    assert main([*args, "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    printed = [json.loads(line) for line in captured.out.splitlines()]
+    frames, summary, bvh = printed[1:-1], printed[-1], out / "old_stdin.bvh"
+    bad = """-:32: expected a JSON object {"x": metres, "z": metres}, got '{"x": 0, "z": "far"}'"""
+    assert len(frames) > 30
+    assert summary == {"done": False, "frames": len(frames), "error": bad, "files": [str(bvh)]}
+    err = captured.err.strip().splitlines()
+    assert err == [f"walkdiff: error: {bad}; the {len(frames)} frames made before it are in {bvh}"]
+    motion = read_bvh(bvh)
+    assert motion.num_frames == len(frames)
+    np.testing.assert_allclose([f["root"] for f in frames], motion.positions[:, 0], atol=1e-3)
+
+
+def test_a_gesture_stream_gone_bad_midway_keeps_the_frames_made(speech_ckpt, tmp_path, capsys):
+    """A float WAV with a NaN sample a second in: the poses made from the audio before it are written."""
+    samples = np.random.default_rng(3).normal(0, 0.2, int(1.5 * RATE)).astype(np.float32)
+    samples[RATE] = np.nan
+    wav, out = tmp_path / "talk.wav", tmp_path / "out"
+    soundfile.write(wav, samples, RATE, subtype="FLOAT")
+    args = ["gesture", "--stream", "--idle", "0.05", "--ckpt", str(speech_ckpt[0]), "--audio", str(wav)]
+    assert main([*args, "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    printed = [json.loads(line) for line in captured.out.splitlines()]
+    frames, summary = printed[1:-1], printed[-1]
+    bad = f"{wav}: a sample that is not a finite number at 1.000 s; expected audio in [-1, 1]"
+    assert len(frames) == 20 - 8  # the mel frames of the first second, less the look-ahead
+    assert summary == {"done": False, "frames": 12, "error": bad, "files": [str(out / "talk.bvh")]}
+    err = captured.err.strip().splitlines()
+    assert err == [f"walkdiff: error: {bad}; the 12 frames made before it are in {out / 'talk.bvh'}"]
+    assert read_bvh(out / "talk.bvh").num_frames == 12
+
+
 def test_bench_stream_reports_latency_and_streams(speech_ckpt, walker_ckpt, tmp_path, capsys):
     out = tmp_path / "stream.json"
     assert main(["bench", "stream", "--out", str(out), "--ckpt", str(speech_ckpt[0]), "--walker",

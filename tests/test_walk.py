@@ -65,6 +65,7 @@ def test_path_error_of_a_walk_beside_the_path():
         ('[[0, 0], [1, "a"]]', "points[1] must be a pair of finite numbers"),
         ("[[0, 0], [0, 0]]", "no length"),
         ('{"points": [[0, 0], [0, 5]], "speed": -3}', "'speed' must be a positive number"),
+        ("[[0, 0], [1e200, 0]]", "the path's length overflows: expected coordinates in metres"),
     ],
 )
 def test_bad_path_files_name_the_file_and_the_field(tmp_path, text, expected):
@@ -204,7 +205,7 @@ def test_config_trains_through_the_cli(synthetic_root, tmp_path, monkeypatch):
 def test_a_path_too_long_for_memory_is_refused_before_walking(trained, tmp_path, capsys):
     path = tmp_path / "far.json"
     path.write_text(json.dumps({"points": [[0, 0], [0, 1e6]], "speed": 12.0}))  # 23 h of walking
-    out = tmp_path / "out"
+    out = tmp_path / "new" / "out"
     args = ["walk", "--ckpt", str(trained), "--style", "old", "--path", str(path), "--out", str(out)]
     assert main(args) == 1
     err = capsys.readouterr().err
@@ -212,7 +213,8 @@ def test_a_path_too_long_for_memory_is_refused_before_walking(trained, tmp_path,
         r"--path: 250000\d frames would need about 15.70 GB of memory, above the limit of 4.00 GB",
         err,
     )
-    assert "walking" not in err and not list(out.glob("*.bvh"))
+    assert "walking" not in err
+    assert not (tmp_path / "new").exists(), "a refused walk leaves no folder behind, not even an empty one"
 
 
 def test_a_long_walk_gets_a_capped_preview(trained, tmp_path):

@@ -28,6 +28,7 @@ from walkdiff.styled.generation import (
     Sampling,
     generate_long,
     load_generator,
+    noised_steps,
     parse_style,
     resolve_windows,
     restyle,
@@ -145,6 +146,7 @@ class StyledGenerator(Pipeline):
         restyled as `walkdiff transfer` does: noised to `strength` of the schedule and denoised in
         `style`; `keep_trajectory` keeps its root path exactly."""
         request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
+        noised_steps(self.model, strength, request.sampling)  # a bad strength fails before any warning
         source = self.source(motion)
         short = self.window_note(source, motion if isinstance(motion, str | os.PathLike) else "the clip")
         if short is not None:
