@@ -91,12 +91,12 @@ def test_a_second_writer_is_refused_with_the_holders_pid(ckpt, tmp_path, capsys)
 
 def test_a_killed_writer_leaves_no_partial_set_and_its_temporaries_go_with_the_next_run(ckpt, tmp_path):
     out = tmp_path / "out"
-    quick = [*SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "40", "--num", "2"]
+    fast = ["--ckpt", str(ckpt), "--out", str(out), "--sampler", "ddim", "--steps", "2"]
+    quick = [*SAMPLE, *fast, "--frames", "40", "--num", "2"]
     assert main([*quick, "--no-gif"]) == 0
     earlier = {p.name: p.read_bytes() for p in out.iterdir()}
-    writer = _walkdiff(*SAMPLE, "--ckpt", str(ckpt), "--out", str(out), "--frames", "400", "--num", "4",
-                       "--overwrite")  # fmt: skip
-    # Its first clip is written, under a temporary name until the whole set is.
+    writer = _walkdiff(*SAMPLE, *fast, "--frames", "400", "--num", "4", "--overwrite")
+    # Its first clip is written, under a temporary name until the whole set is (its previews take seconds).
     _wait_for(lambda: any(out.glob(".angry_walk_000.bvh.*.tmp")), writer, "first clip")
     writer.send_signal(signal.SIGKILL)
     writer.communicate(timeout=30)

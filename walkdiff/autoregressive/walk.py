@@ -286,8 +286,8 @@ def path_points(chunks, where: str):
 
 
 def _feed(stream, points: list[tuple[int, list[float]]], unit: float, where: str) -> None:
-    """(line number, point in metres) pairs to a WalkStream, which walks in the model's units; the point
-    it refuses (too far for memory) is named by its line."""
+    """(line number, point in metres) pairs to a WalkStream, which walks in the model's units; a point it
+    refuses (one the walk to which would not fit in memory) is named by its line."""
     before = len(stream.points)
     try:
         stream.feed(np.asarray([point for _, point in points]).reshape(-1, 2) / unit)

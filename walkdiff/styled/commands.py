@@ -155,14 +155,14 @@ def transfer(
     noised_steps(model, strength, sampling)  # bad strength fails before any work
     input = Path(input)
     motion = generator.source(input)
-    short = generator.window_note(motion, input)
-    if short is not None:
-        print(f"walkdiff: warning: {short}", file=sys.stderr)
     out = output_folder(out)
     target = out / f"{input.stem}_to_{request.label}.bvh"
     report_path = target.with_suffix(".json")
     previews = [target.with_suffix(".gif"), target.with_suffix(".mp4")] if gif else []
     check_free([target, report_path, *previews], overwrite)
+    short = generator.window_note(motion, input)
+    if short is not None:
+        print(f"walkdiff: warning: {short}", file=sys.stderr)
 
     started = time.perf_counter()
     result = generator.restyled(request, motion, strength, keep_trajectory, seed, ground, fix_feet)
