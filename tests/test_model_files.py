@@ -152,6 +152,7 @@ def test_an_exported_model_samples_bit_identically_and_every_command_takes_it(ge
     spec = read_checkpoint(generator)["hyper_parameters"]["data_spec"]
     assert card["summary"]["styles"] == list(spec["styles"]) and card["summary"]["fps"] == spec["fps"]
     assert "skeleton_profile" in card["checkpoint"] and "optimizer_states" not in card["checkpoint"]
+    assert len(card["summary"]["normalisers"]["normalizer.mean"]) == spec["feature_dim"]
 
     options = dict(style="angry:0.5,old:0.5", num=2, frames=40, seed=3, sampler="ddim", steps=4)
     from_ckpt = walkdiff.load(generator).sample(**options)
@@ -203,3 +204,18 @@ def test_upgrade_refuses_what_has_no_plain_form_and_writes_nothing(generator, tm
     torch.save(checkpoint, old)
     assert main(["checkpoint", "upgrade", str(old), "--out", str(new), "--trust"]) == 1
     assert "checkpoint.hook" in capsys.readouterr().err and not new.exists()
+
+
+def test_exported_walkers_and_gesture_models_make_what_their_checkpoints_make(tmp_path_factory, tmp_path):
+    root = tmp_path_factory.mktemp("walker")
+    synthetic.xia_like_folder(root, walk_clips=8, frames=240)
+    walker = tiny.walker(root)[1]
+    gestures, takes = tiny.gestures(tmp_path_factory.mktemp("gestures"))
+    for ckpt, name in ((walker, "walker"), (gestures, "gestures")):
+        assert main(["export", "--ckpt", str(ckpt), "--out", str(tmp_path / name)]) == 0
+    path = dict(path=[[0.0, 0.0], [1.0, 0.0], [1.5, 0.5]], style=walkdiff.load(walker).styles[0], seed=1)
+    a, b = (walkdiff.load(p).follow(**path, sampler="ddim", steps=2) for p in (walker, tmp_path / "walker"))
+    assert np.array_equal(a.positions, b.positions)
+    audio = dict(audio=str(takes / "a.wav"), seed=1, sampler="ddim", steps=2)
+    a, b = (walkdiff.load(p).gesture(**audio)[0] for p in (gestures, tmp_path / "gestures"))
+    assert np.array_equal(a.positions, b.positions)

@@ -155,7 +155,7 @@ def test_atomic_write_leaves_only_the_result(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(Image.Image, "save", broken_save)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(WalkdiffError, match=r"walk.gif: cannot write \(disk full\)"):  # the file named
         render_gif(target, walker(40), PARENTS, 30)
     assert sorted(p.name for p in target.parent.iterdir()) == ["walk.gif", "walk.png"]
     assert target.read_bytes() == before

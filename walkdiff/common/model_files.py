@@ -78,6 +78,12 @@ def _summary(checkpoint: dict) -> dict:
             "batches": checkpoint.get("global_step"),
             "best_metrics": metrics,
             "distilled": checkpoint.get("distilled"),
+            # Per-channel statistics features are normalised with (also in the weights file).
+            "normalisers": {
+                name: value.tolist()
+                for name, value in checkpoint["state_dict"].items()
+                if name.rsplit(".", 2)[-2:-1] in (["normalizer"], ["audio_normalizer"])
+            },
         },
         "summary",
     )

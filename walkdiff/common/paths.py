@@ -1,4 +1,5 @@
-"""Where walkdiff finds its data: `WALKDIFF_DATA`, default `./data`."""
+"""Where walkdiff finds its data (`WALKDIFF_DATA`, default `./data`), and which paths in a data folder it
+will open."""
 
 from __future__ import annotations
 
@@ -24,3 +25,19 @@ def dataset_dir(name: str, root: str | os.PathLike | None = None) -> Path:
     if not path.is_dir():
         raise WalkdiffError(f"dataset folder not found (tried {path.resolve()}). {GET_DATA_HINT}", path=path)
     return path
+
+
+def refuse_link_out(folder: Path, path: Path, what: str) -> None:
+    """WalkdiffError when `path`, inside `folder` by name, is a symbolic link (or lies below one) that
+    leads out of it. A folder from elsewhere must not make walkdiff open, and quote in its errors, any
+    file this user can read; links that stay inside, and paths named outside on purpose, are fine."""
+    base = Path(os.path.abspath(folder))
+    if not Path(os.path.abspath(path)).is_relative_to(base):
+        return  # data.labels given as an absolute or ../ path: the user named that file
+    target = path.resolve()
+    if not target.is_relative_to(base.resolve()):
+        raise WalkdiffError(
+            f"{what} is a symbolic link to {target}, outside the dataset folder {base}: refused "
+            "(copy the file into the folder, or link to a file inside it)",
+            path=path,
+        )

@@ -36,7 +36,6 @@ import csv
 import io
 import json
 import math
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +43,7 @@ from typing import ClassVar
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import read_utf8
+from walkdiff.common.paths import refuse_link_out
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.skeleton import Motion
@@ -296,22 +296,6 @@ def list_bvh_files(folder: Path) -> list[tuple[str, Path]]:
     if not found:
         raise WalkdiffError("no .bvh files found in this folder or below it", path=folder)
     return list(found.items())
-
-
-def refuse_link_out(folder: Path, path: Path, what: str) -> None:
-    """WalkdiffError when `path`, inside `folder` by name, is a symbolic link (or lies below one) that
-    leads out of it. A folder from elsewhere must not make walkdiff open, and quote in its errors, any
-    file this user can read; links that stay inside, and paths named outside on purpose, are fine."""
-    base = Path(os.path.abspath(folder))
-    if not Path(os.path.abspath(path)).is_relative_to(base):
-        return  # data.labels given as an absolute or ../ path: the user named that file
-    target = path.resolve()
-    if not target.is_relative_to(base.resolve()):
-        raise WalkdiffError(
-            f"{what} is a symbolic link to {target}, outside the dataset folder {base}: refused "
-            "(copy the file into the folder, or link to a file inside it)",
-            path=path,
-        )
 
 
 def check_fractions(val_fraction: float, test_fraction: float) -> None:
