@@ -29,7 +29,7 @@ import torch
 from torch.utils.data import Dataset
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.common.paths import dataset_dir, refuse_link_out
+from walkdiff.common.paths import dataset_dir
 from walkdiff.data.datamodule import WindowLoaders
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.profile import SkeletonProfile
@@ -285,8 +285,6 @@ def list_takes(folder: Path) -> list[tuple[Path, Path]]:
     """(bvh, wav) pairs of a folder, matched by stem; an unpaired file is an error naming it."""
     bvhs = {p.stem: p for p in sorted(folder.glob("*.bvh"))}
     wavs = {p.stem: p for p in sorted(folder.glob("*.wav"))}
-    for path in [*bvhs.values(), *wavs.values()]:
-        refuse_link_out(folder, path, "a take's file")
     unpaired = sorted(set(bvhs) ^ set(wavs))
     if unpaired:
         names = [str(bvhs.get(s) or wavs.get(s)) for s in unpaired]

@@ -9,7 +9,6 @@ import re
 from pathlib import Path
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.common.paths import refuse_link_out
 from walkdiff.data.clips import ClipInfo, ContentSelection, deterministic_order
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.skeleton import Motion
@@ -66,8 +65,6 @@ def list_clips(folder: Path) -> list[ClipInfo]:
     files = sorted(folder.glob("*.bvh"))
     if not files:
         raise WalkdiffError("no .bvh files found; expected the 572 Xia clips", path=folder)
-    for path in files:
-        refuse_link_out(folder, path, "a clip")
     return [parse_name(f) for f in files]
 
 
