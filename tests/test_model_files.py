@@ -219,3 +219,15 @@ def test_exported_walkers_and_gesture_models_make_what_their_checkpoints_make(tm
     audio = dict(audio=str(takes / "a.wav"), seed=1, sampler="ddim", steps=2)
     a, b = (walkdiff.load(p).gesture(**audio)[0] for p in (gestures, tmp_path / "gestures"))
     assert np.array_equal(a.positions, b.positions)
+
+
+def test_the_kind_check_of_an_export_reads_its_card_alone(generator, tmp_path):
+    """`checkpoint_class` runs before every load: for a folder it must not read the weights twice."""
+    from walkdiff.common import checkpoints
+
+    folder = tmp_path / "export"
+    assert main(["export", "--ckpt", str(generator), "--out", str(folder)]) == 0
+    (folder / "model.safetensors").write_bytes(b"damaged")  # reading the weights would now fail
+    assert checkpoints.checkpoint_class(folder) == "walkdiff.models.styled_ddpm.StyledMotionDiffusion"
+    with pytest.raises(WalkdiffError, match="not readable safetensors"):
+        read_checkpoint(folder)

@@ -83,13 +83,14 @@ def _named_global(message: str) -> str:
     return f" ({found.group(1)})" if found else ""
 
 
-def read_export(folder: Path, what: str = "model") -> dict:
-    """An exported model folder as the checkpoint dict it was made from (less the training state)."""
+def read_export(folder: Path, what: str = "model", weights: bool = True) -> dict:
+    """An exported model folder as the checkpoint dict it was made from (less the training state); with
+    `weights` False, the card's part alone (what the kind check needs), leaving the weights unread."""
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
-    card_path, weights = folder / EXPORT_CARD, folder / EXPORT_WEIGHTS
-    if not card_path.is_file() or not weights.is_file():
+    card_path, weights_path = folder / EXPORT_CARD, folder / EXPORT_WEIGHTS
+    if not card_path.is_file() or not weights_path.is_file():
         raise WalkdiffError(
             f"a folder given as a {what} must hold {EXPORT_WEIGHTS} and {EXPORT_CARD} (written by "
             "`walkdiff export`)",
@@ -101,10 +102,12 @@ def read_export(folder: Path, what: str = "model") -> dict:
         raise WalkdiffError(f"not a model card (JSON): {error}", path=card_path) from None
     if not isinstance(card, dict) or card.get("format") != EXPORT_FORMAT:
         raise WalkdiffError(f"expected a model card with format {EXPORT_FORMAT!r}", path=card_path)
+    if not weights:
+        return dict(card["checkpoint"])
     try:
-        state = load_file(weights)
+        state = load_file(weights_path)
     except (SafetensorError, OSError) as error:
-        raise WalkdiffError(f"not readable safetensors: {error}", path=weights) from None
+        raise WalkdiffError(f"not readable safetensors: {error}", path=weights_path) from None
     return {**card["checkpoint"], "state_dict": state}
 
 
@@ -122,7 +125,8 @@ def loadable(path: str | Path) -> Path | io.BytesIO:
 
 def checkpoint_class(path: str | Path, what: str = "model") -> str:
     """The class path of the LightningModule a checkpoint was saved from."""
-    checkpoint = read_checkpoint(path, what)
+    path = Path(path)
+    checkpoint = read_export(path, what, weights=False) if path.is_dir() else read_checkpoint(path, what)
     hparams = checkpoint.get("hyper_parameters") or {}
     return (
         checkpoint.get("evaluator_class")

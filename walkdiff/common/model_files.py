@@ -82,11 +82,16 @@ def _summary(checkpoint: dict) -> dict:
             "normalisers": {
                 name: value.tolist()
                 for name, value in checkpoint["state_dict"].items()
-                if name.rsplit(".", 2)[-2:-1] in (["normalizer"], ["audio_normalizer"])
+                if _is_normaliser(name.rpartition(".")[0])
             },
         },
         "summary",
     )
+
+
+def _is_normaliser(module: str) -> bool:
+    """A model's own Normalizer (`normalizer`, `audio_normalizer`, `control_normalizer`, ...)."""
+    return "." not in module and module.endswith("normalizer")
 
 
 def _json_data(value, where: str):
