@@ -528,18 +528,22 @@ def write_labels(
     files: Mapping[str, str],
     kind: str = "csv",
     splits: Mapping[str, str] | None = None,
+    originals: Mapping[str, str] | None = None,
 ) -> Path:
     """Write `labels.csv` or `labels.json` in `folder`: one row per disguised file, columns file, style,
     content (and split when `splits` is given), rows in file order.
 
     `files` maps each original Xia file name (which gives the labels) to its disguised name (the `file`
-    column); `splits` maps original names to a split name. JSON is a list of row objects.
+    column); `splits` maps original names to a split name; `originals` maps a key of `files` that is not
+    a Xia name (a tempo copy) to its Xia file. JSON is a list of row objects.
     """
+    originals = originals or {}
     if kind not in ("csv", "json"):
         raise ValueError(f"unknown label manifest kind {kind!r}: expected csv or json")
     columns = LABEL_COLUMNS + (("split",) if splits is not None else ())
     rows = []
-    for original, disguised in sorted(files.items(), key=lambda item: item[1]):
+    for key, disguised in sorted(files.items(), key=lambda item: item[1]):
+        original = originals.get(key, key)
         style, content = xia_labels(original)
         row = {"file": disguised, "style": style, "content": content}
         if splits is not None:
@@ -564,6 +568,14 @@ def default_precision(scale: float) -> int:
     return 6 if scale >= 1 else 7 + math.ceil(-math.log10(scale))
 
 
+def tempo(motion: Motion, speed: float) -> Motion:
+    """The same movement performed `speed` times faster (a quicker or slower performer), at the clip's
+    own frame rate: resampled in time, then played at the original rate."""
+    if speed == 1:
+        return motion
+    return replace(resample(motion, motion.fps / speed), frame_time=motion.frame_time)
+
+
 def disguised_folder(
     xia_dir: str | Path,
     out_dir: str | Path,
@@ -573,33 +585,40 @@ def disguised_folder(
     splits: Mapping[str, str] | None = None,
     precision: int | None = None,
     seed: int = 0,
+    speeds: Sequence[float] = (1.0,),
 ) -> DisguiseRecord:
     """Write the Xia `clips` (file names, with or without .bvh) through the same `steps` into `out_dir`.
 
     Files get neutral names take_0001.bvh ... numbered in a seeded random order (neither the name nor the
     number tells a label); the manifest (`write_labels`, kind `labels`) holds the labels. Values are
-    written with `precision` decimals (default: `default_precision` of the chain's unit scale). Returns
-    the record (identical for every clip; a clip whose frame step or names differ raises).
+    written with `precision` decimals (default: `default_precision` of the chain's unit scale). With
+    several `speeds`, every clip is written once per tempo (`tempo`), each copy in its clip's split: a
+    larger folder of the same kind. Returns the record (identical for every clip; a clip whose frame step
+    or names differ raises).
     """
     names = [Path(c).name if str(c).endswith(".bvh") else Path(c).name + ".bvh" for c in clips]
     if len(set(names)) != len(names):
         raise ValueError("the same clip is listed twice")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    numbers = np.random.default_rng(seed).permutation(len(names)) + 1
+    copies = [(name, speed) for name in names for speed in speeds]
+    numbers = np.random.default_rng(seed).permutation(len(copies)) + 1
     record: DisguiseRecord | None = None
-    for name, number in zip(names, numbers):
-        motion, this = disguise(read_bvh(Path(xia_dir) / name), steps)
+    originals: dict[str, str] = {}  # disguised copy -> its Xia file, for the labels
+    for (name, speed), number in zip(copies, numbers):
+        motion, this = disguise(tempo(read_bvh(Path(xia_dir) / name), speed), steps)
         if record is None:
             record = this
             record.precision = precision if precision is not None else default_precision(record.scale)
         elif this.names != record.names or this.frame_step != record.frame_step:
             raise ValueError(f"{name}: the disguise differs from the first clip's (skeleton or frame rate)")
-        record.files[name] = f"take_{number:04d}.bvh"
-        write_bvh(out_dir / record.files[name], motion, precision=record.precision)
+        copy = name if len(speeds) == 1 else f"{name.removesuffix('.bvh')}@{speed:g}.bvh"
+        originals[copy] = name
+        record.files[copy] = f"take_{number:04d}.bvh"
+        write_bvh(out_dir / record.files[copy], motion, precision=record.precision)
     if record is None:
         raise ValueError("no clips given")
-    record.manifest = write_labels(out_dir, record.files, labels, splits)
+    record.manifest = write_labels(out_dir, record.files, labels, splits, originals)
     return record
 
 
@@ -618,15 +637,95 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("out_dir")
     parser.add_argument("--contents", default="walk", help="Xia content groups (default walk)")
     parser.add_argument("--steps", default=",".join(DEFAULT_STEPS), help="disguise chain, comma-separated")
+    parser.add_argument(
+        "--speeds",
+        default="1",
+        help="tempo copies of every clip, comma-separated (e.g. 0.8,1,1.2: 3x the data)",
+    )
     args = parser.parse_args(argv)
     clips = xia.list_clips(Path(args.xia_dir))
     splits = xia.split_clips(clips, ContentSelection.parse(args.contents, xia.GROUPS))
     split_of = {f"{c.name}.bvh": split for split, members in splits.items() for c in members}
     record = disguised_folder(
-        args.xia_dir, args.out_dir, sorted(split_of), args.steps.split(","), splits=split_of
-    )
+        args.xia_dir, args.out_dir, sorted(split_of), args.steps.split(","), splits=split_of,
+        speeds=[float(s) for s in args.speeds.split(",")],
+    )  # fmt: skip
     print(f"wrote {len(record.files)} disguised clips and {record.manifest} ({', '.join(record.steps)})")
 
 
 if __name__ == "__main__":
     main()
+
+
+# ------------------------------------------------------------------------- rest poses and split roots
+
+
+def _turn_to(axis: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking the unit `axis` to the unit `direction` (Rodrigues)."""
+    cross, cos = np.cross(axis, direction), float(axis @ direction)
+    sin = np.linalg.norm(cross)
+    if sin < 1e-12:
+        return np.eye(3) if cos > 0 else _axis_rotations(np.array([0.0, 0.0, 1.0]), np.array([np.pi]))[0]
+    return _axis_rotations(cross / sin, np.array([np.arctan2(sin, cos)]))[0]
+
+
+def axis_rest(motion: Motion, axis: int = 0, joints: Iterable[str] | None = None) -> Motion:
+    """A rest pose that is no pose: every bone of the named joints (default all) along the file's +/- axis
+    `axis` (0 = X), its length kept, the sign that of the bone's own component; world positions unchanged.
+
+    A joint j with one child bone (or, at a leaf, an End Site) gets a constant turn C_j taking the axis
+    to its bone, so the child's OFFSET becomes C_j^T o = +/-|o| along the axis; its rotation becomes
+    C_parent^T R_j C_j and every translation below it C_j^T p. Joints with several children (or fewer than
+    three rotation channels) keep C = I: their children's OFFSETs cannot all lie on one axis. The root's
+    turn, if any, changes its world rotation (W C): a profile's forward axis turns with it.
+    """
+    sk = motion.skeleton
+    chosen = set(sk.names if joints is None else joints)
+    unit = np.eye(3)[axis]
+    turns = np.repeat(np.eye(3)[None], sk.num_joints, axis=0)
+    for j in range(sk.num_joints):
+        children = sk.children(j)
+        bone = (
+            sk.offsets[children[0]] if len(children) == 1 else sk.end_sites.get(j) if not children else None
+        )
+        if sk.names[j] not in chosen or bone is None or len(sk.rotation_order(j)) != 3:
+            continue
+        if np.linalg.norm(bone) > 1e-9:
+            sign = 1.0 if bone[axis] >= 0 else -1.0
+            turns[j] = _turn_to(sign * unit, bone / np.linalg.norm(bone))
+    parent_turns = np.concatenate([np.eye(3)[None], turns[sk.parents[1:]]])  # C of each joint's parent
+    back = np.swapaxes(parent_turns, -1, -2)
+    rotations = back @ motion.rotations @ turns
+    rotations[:, 0] = motion.rotations[:, 0] @ turns[0]
+    positions = motion.positions.copy()
+    positions[:, 1:] = (back[1:] @ motion.positions[:, 1:, :, None])[..., 0]
+    offsets = sk.offsets.copy()
+    offsets[1:] = (back[1:] @ sk.offsets[1:, :, None])[..., 0]
+    ends = {j: turns[j].T @ np.asarray(o) for j, o in sk.end_sites.items()}
+    return Motion(_skeleton(sk, offsets=offsets, end_sites=ends), rotations, positions, motion.frame_time)
+
+
+def split_root(motion: Motion, carry: str = "ground", name: str = "Root", up: int = 1) -> Motion:
+    """A new, unrotated root `name` above the hips that carries part of their translation; the hips
+    (position channels) keep the rest, so world positions are unchanged.
+
+    `carry="ground"`: the root carries the hips' path on the floor (up coordinate 0, axis `up` of the
+    file) and the hips their height with its bob, as game rigs' ground-projected roots do: the root lies
+    below the feet. `carry="path"`: the root carries the hips' translation smoothed over a second (height
+    included) and the hips a small bob and sway around it: a root that looks static next to the hips.
+    """
+    hips = motion.positions[:, 0]
+    if carry == "ground":
+        carried = hips.copy()
+        carried[:, up] = 0.0
+    elif carry == "path":
+        width = max(1, int(round(motion.fps)))
+        kernel = np.ones(width) / width
+        padded = np.pad(hips, ((width // 2, width - 1 - width // 2), (0, 0)), mode="edge")
+        carried = np.stack([np.convolve(padded[:, i], kernel, mode="valid") for i in range(3)], axis=1)
+    else:
+        raise ValueError(f"unknown carry {carry!r}: expected ground or path")
+    moved = static_root(motion, name)
+    moved.positions[:, 0] = carried
+    moved.positions[:, 1] = hips - carried
+    return moved

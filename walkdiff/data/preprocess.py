@@ -29,7 +29,9 @@ from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Skeleton
 
 # Bump when encode() or the loaders change what they produce: old caches then rebuild.
-FEATURES_VERSION = 2
+# 3: profiles from the posed body (a split root/hips translation, a rest pose that is no pose) and
+# clips of another layout refused.
+FEATURES_VERSION = 3
 
 
 @dataclass
@@ -75,7 +77,9 @@ def _process_clip(source: MotionSource, profile: dict, clip: ClipInfo, fps: floa
     profile = SkeletonProfile.from_dict(profile)
     try:
         file_motion = source.load(clip)
-        profile.check(file_motion.skeleton, clip.path)
+        # Another skeleton, up axis, unit or root layout than the clip the profile came from: refused,
+        # naming the difference (joints above the root that move are folded in, per frame, instead).
+        profile.check_layout(file_motion, clip.path)
         motion = resample(profile.to_canonical(file_motion), fps)
         features = encode(motion, profile)
         mirrored = encode(mirror_motion(motion, profile.body_pairs), profile) if mirror else None

@@ -13,10 +13,12 @@ from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.mirror import mirror
 from walkdiff.motion.profile import SkeletonProfile
-from walkdiff.motion.profile_detection import NO_FEET
+from walkdiff.motion.profile_detection import NO_FEET, translation_off_offsets
 from walkdiff.motion.representation import decode, encode, foot_contacts, start_pose
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
+
+ROUND_TRIP = 1e-3  # of the body height: how far `convert` may move a joint before it refuses to write
 
 
 def suspicious(motion: Motion, world: np.ndarray, height: float) -> list[str]:
@@ -126,8 +128,42 @@ def convert_file(
         raise WalkdiffError(
             f"converting to BVH goes through the features: {NO_FEET} (or write .glb)", path=source
         )
+    layout = found.to_file(found.to_canonical(motion))  # the input's own frames, before any resampling
+    check_round_trip(motion, layout, found, source, "through the profile's layout")
     features = encode(canonical, found)
     position, heading = start_pose(canonical, found)
-    out = found.to_file(decode(features, canonical.skeleton, canonical.frame_time, position, heading))
+    decoded = decode(features, canonical.skeleton, canonical.frame_time, position, heading)
+    check_round_trip(canonical, decoded, found, source, "through the features")
+    out = found.to_file(decoded)
     write_bvh(target, out)
-    return f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{mirrored}"
+    rebuilt = f"; {', '.join(found.carriers)} given the root's path again" if found.carriers else ""
+    return f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{mirrored}{rebuilt}"
+
+
+def check_round_trip(reference: Motion, back: Motion, found: SkeletonProfile, source, what: str) -> None:
+    """A WalkdiffError, nothing written, when `back` (on `reference`'s skeleton) puts a joint farther than
+    ROUND_TRIP body heights from where `reference` has it. Joints that carry part of the root's path
+    (`SkeletonProfile.carriers`) are left out: export gives them the path again, not their own."""
+    names = reference.skeleton.names
+    error = np.linalg.norm(motion_world_positions(reference) - motion_world_positions(back), axis=-1)
+    error[:, [names.index(n) for n in found.carriers if n in names]] = 0.0
+    frame, joint = np.unravel_index(int(np.argmax(error)), error.shape)
+    worst = float(error[frame, joint])
+    if worst <= ROUND_TRIP * found.body_height:
+        return
+    root = reference.skeleton.index(found.root) if found.root in names else 0
+    lost = translation_off_offsets(reference, root, ROUND_TRIP * found.body_height)
+    why = (
+        f": translation on {', '.join(repr(names[j]) for j, _ in lost[:4])} below the root {found.root!r}, "
+        "which the features do not keep (set profile.root to the joint that carries it)"
+        if lost
+        else f": joints outside the body ({found.root!r} and below) move, and export keeps their first frame"
+        if joint not in found.body and what.startswith("through the profile")
+        else ""
+    )  # fmt: skip
+    raise WalkdiffError(
+        f"convert would write {names[joint]!r} {worst:.4g} {found.units} "
+        f"({worst / found.body_height:.2%} of the body height) from where the input has it at frame "
+        f"{frame} ({what}){why}; nothing written",
+        path=source,
+    )

@@ -11,7 +11,9 @@ Everything below works in the *canonical* frame: Y up, the root's subtree only (
 local rotation and offset expressed in that frame (R -> U R U^T, o -> U o with U taking the file's
 up axis to +Y). A canonical clip has the same world positions as the file's, turned by U.
 `to_canonical` and `to_file` convert a clip both ways; the round trip is exact for the folded and
-non-body joints when they are static, as the profile found them.
+non-body joints when they are static, as the profile found them, and for joints above the root that
+carried part of its path along some axes (`carriers`) when they carried it all along those axes.
+`check_layout` refuses a clip of the skeleton whose layout the features would misread or drop.
 """
 
 from __future__ import annotations
@@ -22,14 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.motion import posed_frames as posed
 from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.posed_frames import ancestors, subtree, world_transforms
 from walkdiff.motion.profile_detection import (
     NO_FEET,
-    ancestors,
     axis_name,
     axis_rotation,
     detect_fields,
-    subtree,
+    translation_off_offsets,
 )
 from walkdiff.motion.skeleton import Motion, Skeleton, skeleton_from_dict, skeleton_to_dict
 
@@ -75,6 +78,9 @@ class SkeletonProfile:
     contact_height: float  # units
     # Local rotation (3x3) and translation (3,) of every joint outside the body (folded or helper).
     fixed: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    # Joints above the root whose translation moved in the clip (a root carrying the path, the hips a bob),
+    # with the axes of their parent's frame it moved along: export gives them the root's path there again.
+    carriers: dict[str, list[int]] = field(default_factory=dict)
     found: dict[str, str] = field(default_factory=dict)  # how each field was found
     notes: tuple[str, ...] = ()  # anything suspicious
 
@@ -210,13 +216,47 @@ class SkeletonProfile:
             )
         return world
 
+    def check_layout(self, motion: Motion, path=None) -> None:
+        """A WalkdiffError naming what differs when `motion`, a clip of this skeleton, is laid out
+        otherwise than the profile in a way its features would silently lose or misread: translation on a
+        body joint below the root, the body standing along another axis, a body of another size (units).
+        Joints above the root that move are reconciled: they are folded into the root on every frame."""
+        self.check(motion.skeleton, path)
+        problems = layout_differences(self, motion)
+        if problems:
+            raise WalkdiffError(
+                "laid out otherwise than the dataset's skeleton profile (found from its first clip): "
+                + "; ".join(problems)
+                + ". Give such clips their own folder (or profile), or leave them out (data.on_error: skip)",
+                path=path,
+            )
+
+    def posed_body_height(self, motion: Motion, transforms=None) -> float | None:
+        """How tall the body of `motion` (a clip of this skeleton) is on its posed frames, along the
+        profile's up: the head's top above the floor under the feet, the median over frames with both
+        feet down (`walkdiff.motion.posed_frames.posed_height`); None without feet or a head.
+        `transforms`: the clip's world positions and rotations, when already at hand."""
+        if not self.feet:
+            return None
+        skeleton = motion.skeleton
+        head = _head(self, skeleton)
+        if head is None:
+            return None
+        world, world_rot = transforms if transforms is not None else world_transforms(motion)
+        heels = [skeleton.index(self.feet["left_heel"]), skeleton.index(self.feet["right_heel"])]
+        up = np.asarray(self.up) / np.linalg.norm(self.up)
+        return posed.body_height_on_frames(world, world_rot, skeleton, head, heels, up)[0]
+
     # ------------------------------------------------------------ conversions
 
-    def _chain(self, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World rotation (..., 3, 3) and position (..., 3) of the root's parent frame."""
+    def _chain(
+        self, rotations: np.ndarray, positions: np.ndarray, joint: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """World rotation (..., 3, 3) and position (..., 3) of the frame `joint` (default: the root) hangs
+        in: its parent's."""
         rot = np.broadcast_to(np.eye(3), rotations.shape[:-3] + (3, 3)).copy()
         pos = np.zeros(positions.shape[:-2] + (3,))
-        for j in ancestors(self.skeleton, self.root_index):
+        for j in ancestors(self.skeleton, self.root_index if joint is None else joint):
             pos = pos + (rot @ positions[..., j, :, None])[..., 0]
             rot = rot @ rotations[..., j, :, :]
         return rot, pos
@@ -260,10 +300,15 @@ class SkeletonProfile:
             rotations[:, j], positions[:, j] = rot, pos
         rotations[:, body] = u.T @ motion.rotations @ u
         positions[:, body] = motion.positions @ u
-        chain_rot, chain_pos = self._chain(rotations, positions)
         root = self.root_index
         world_rot = u.T @ motion.rotations[:, 0] @ u
         world_pos = motion.positions[:, 0] @ u
+        for name, axes in self.carriers.items():  # top down: a carrier's parents are placed first
+            j = s.index(name)
+            parent_rot, parent_pos = self._chain(rotations, positions, j)
+            local = np.einsum("fji,fj->fi", parent_rot, world_pos - parent_pos)
+            positions[:, j, axes] = local[:, axes]
+        chain_rot, chain_pos = self._chain(rotations, positions)
         inverse = np.swapaxes(chain_rot, -1, -2)
         rotations[:, root] = inverse @ world_rot
         positions[:, root] = (inverse @ (world_pos - chain_pos)[..., None])[..., 0]
@@ -285,6 +330,7 @@ class SkeletonProfile:
             "contact_speed": self.contact_speed,
             "contact_height": self.contact_height,
             "fixed": {n: [r.tolist(), p.tolist()] for n, (r, p) in self.fixed.items()},
+            "carriers": {n: list(axes) for n, axes in self.carriers.items()},
             "found": dict(self.found),
             "notes": list(self.notes),
         }
@@ -307,6 +353,7 @@ class SkeletonProfile:
                 n: (np.asarray(r, dtype=np.float64), np.asarray(p, dtype=np.float64))
                 for n, (r, p) in data["fixed"].items()
             },  # fmt: skip
+            carriers={n: [int(a) for a in axes] for n, axes in data.get("carriers", {}).items()},
             found=dict(data.get("found", {})),
             notes=tuple(data.get("notes", ())),
         )
@@ -318,7 +365,8 @@ class SkeletonProfile:
         up, forward_text = axis_name(np.asarray(self.up)), axis_name(np.asarray(self.forward))
         return [
             f"root:      {self.root}"
-            + (f" (static above it, folded: {', '.join(folded)})" if folded else "")
+            + (f" (static above it, folded: {', '.join(folded)})" if folded and not self.carriers else "")
+            + (f" (translation shared with {', '.join(self.carriers)} above it)" if self.carriers else "")
             + f" [{self.found.get('root', '')}]",
             (
                 f"feet:      left {f.get('left_heel')} / {f.get('left_toe')}, "
@@ -333,13 +381,62 @@ class SkeletonProfile:
             f"axes:      up {up} [{self.found.get('up', '')}], root faces local {forward_text} (canonical)"
             f" [{self.found.get('forward', '')}]",
             f"units:     {self.units}, {self.metres_per_unit:.6g} m per unit [{self.found.get('units', '')}]",
-            f"height:    {self.body_height:.4g} units = {self.body_height * self.metres_per_unit:.2f} m",
+            f"height:    {self.body_height:.4g} units = {self.body_height * self.metres_per_unit:.2f} m"
+            f" [{self.found.get('body_height', '')}]",
+            f"rest pose: {self.found.get('rest_pose', 'not checked')}",
             f"contacts:  slower than {self.contact_speed:.3g} units/s and within {self.contact_height:.3g} "
             f"units of the foot's floor [{self.found.get('contacts', '')}]",
         ]
 
 
 # ---------------------------------------------------------------- helpers
+
+LAYOUT_UP_DEGREES = 45.0  # a clip whose body stands farther than this from the profile's up is refused
+LAYOUT_SIZE = 2.0  # nor one whose posed body is this many times taller or shorter than the profile's
+# nor one with translation below the root that leaves the bone offsets by this many body heights: motion
+# the features would drop (looser than `convert`'s check: bone lengths of raw capture jitter a little)
+LAYOUT_TRANSLATION = 0.01
+
+
+def layout_differences(profile: SkeletonProfile, motion: Motion) -> list[str]:
+    """What in `motion` the profile cannot reconcile (see `SkeletonProfile.check_layout`), as phrases."""
+    skeleton, height = motion.skeleton, profile.body_height
+    root = skeleton.index(profile.root)
+    problems = [
+        f"translation on {skeleton.names[j]!r} below the root {profile.root!r} leaves its bone offset by up "
+        f"to {off:.3g} {profile.units} (the features keep only the root's)"
+        for j, off in translation_off_offsets(motion, root, LAYOUT_TRANSLATION * height)
+    ]
+    if not profile.feet:
+        return problems
+    transforms = world, _ = world_transforms(motion)
+    feet = [skeleton.index(profile.feet[k]) for k in ("left_heel", "left_toe", "right_heel", "right_toe")]
+    head = _head(profile, skeleton)
+    top = head if head is not None else root
+    up, _, share = posed.posed_up(world, top, feet[::2])
+    profile_up = np.asarray(profile.up) / np.linalg.norm(profile.up)
+    angle = float(np.degrees(np.arccos(np.clip(up @ profile_up, -1.0, 1.0))))
+    if angle > LAYOUT_UP_DEGREES and share >= 0.9:
+        problems.append(
+            f"the body stands along {axis_name(up)} (feet to {skeleton.names[top]} on {share:.0%} of the "
+            f"frames), the profile's up is {axis_name(profile_up)}"
+        )
+        return problems  # its height along the profile's up means nothing
+    measured = profile.posed_body_height(motion, transforms)
+    if measured is not None:
+        if not height / LAYOUT_SIZE <= measured <= height * LAYOUT_SIZE:
+            problems.append(
+                f"the posed body is {measured:.4g} units tall, the profile's {height:.4g} {profile.units} "
+                "(other units or another body)"
+            )
+    return problems
+
+
+def _head(profile: SkeletonProfile, skeleton: Skeleton) -> int | None:
+    """The head joint of `skeleton` (`posed_frames.find_head`) with the profile's root, pairs and feet."""
+    pairs = [(skeleton.index(a), skeleton.index(b)) for a, b in profile.mirror_pairs]
+    feet = [skeleton.index(profile.feet[k]) for k in ("left_heel", "left_toe", "right_heel", "right_toe")]
+    return posed.find_head(skeleton, skeleton.index(profile.root), pairs, feet)
 
 
 def _listed(names: list[str], limit: int = 8) -> str:

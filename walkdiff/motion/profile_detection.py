@@ -1,19 +1,25 @@
 """How a `SkeletonProfile` is found from a BVH clip: each field the configuration does not give.
 
 - root: the joint whose translation moves. Static joints above it (constant transform over the clip)
-  are *folded*: their transform is applied to the root and restored, as it was, on export.
+  are *folded*: their transform is applied to the root and restored, as it was, on export. When a
+  lone joint above the hips moves and the hips' translation moves too (a root carrying the path on the
+  floor, the hips their height and bob), the hips are the root and the joint above is folded in on
+  every frame; export gives it the hips' path again along the axes it moved on (`find_carriers`).
 - feet: heel (ankle) and toe of each side, by name over the common conventions (CMU, Mixamo, SMPL,
   Unreal, DAZ, Biped ...), else the ends of the two leg chains (the left/right pair nearest the root).
 - left/right pairs by name (`walkdiff.motion.mirror.find_mirror_pairs`).
-- up: the signed file axis from the feet to the root over the clip; `forward`: the root's local axis
-  that points where the body faces (up x (right - left) over the clip's left/right pairs).
+- up: the signed file axis from the feet to the head over the posed frames, not the root's motion.
+- body height and `forward` (the root's local axis the body faces) from the rest pose when it is a
+  pose, the same for every clip of a skeleton; from the posed frames when the rest pose is no pose
+  (legs laid along an axis, bones on one line), said in `found` and `notes`
+  (`walkdiff.motion.posed_frames`).
 - units (metres per unit) from the body height when it is a human height in m, cm, mm or inches;
   otherwise estimated for a 1.7 m body and said so.
 - contact thresholds from the body height: speed `CONTACT_SPEED` heights/s (per frame: that over the
-  frame rate), height `CONTACT_HEIGHT` heights. On Xia (25.4 units tall) that is 5.1 units/s and
-  0.51 units, within 2% of the thresholds measured by hand on its foot speeds.
+  frame rate), height `CONTACT_HEIGHT` heights. On Xia (24.1 units tall) that is 4.8 units/s and
+  0.48 units, within 2% of the thresholds measured by hand on its foot speeds.
 
-Also the tree and axis geometry a profile uses to turn a clip into its canonical frame.
+Also the axis geometry a profile uses to turn a clip into its canonical frame.
 """
 
 from __future__ import annotations
@@ -21,16 +27,25 @@ from __future__ import annotations
 import re
 
 import numpy as np
-import torch
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion import posed_frames as posed
 from walkdiff.motion.mirror import find_mirror_pairs
+from walkdiff.motion.posed_frames import (
+    ancestors,
+    depth,
+    is_static,
+    rest_points,
+    subtree,
+    world_transforms,
+)
+from walkdiff.motion.posed_frames import snap_axis as _snap
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 CONTACT_SPEED = 0.2  # body heights per second
 CONTACT_HEIGHT = 0.02  # body heights above the foot's own floor
 ASSUMED_HEIGHT_M = 1.7  # when the units cannot be told from the body height
+LOST_TRANSLATION = 1e-3  # body heights: translation below the root beyond this is motion the features lose
 
 # Body heights (file units) of a human in each unit, and metres per unit.
 _UNITS = (
@@ -90,64 +105,7 @@ def axis_name(v: np.ndarray) -> str:
     return name or "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
-def _snap(v: np.ndarray, degrees: float) -> tuple[np.ndarray, float]:
-    """The signed unit axis nearest `v` if within `degrees`, else `v` normalised; and the angle to it."""
-    v = v / max(np.linalg.norm(v), 1e-12)
-    axis = np.zeros(3)
-    i = int(np.argmax(np.abs(v)))
-    axis[i] = np.sign(v[i])
-    angle = float(np.degrees(np.arccos(np.clip(v @ axis, -1, 1))))
-    return (axis if angle <= degrees else v), angle
-
-
 # ---------------------------------------------------------------- the tree and its poses
-
-
-def subtree(skeleton: Skeleton, joint: int) -> list[int]:
-    """`joint` and every joint below it, in file order."""
-    inside = {joint}
-    for j in range(joint + 1, skeleton.num_joints):  # parents precede children
-        if skeleton.parents[j] in inside:
-            inside.add(j)
-    return sorted(inside)
-
-
-def ancestors(skeleton: Skeleton, joint: int) -> list[int]:
-    """The joints above `joint`, from the top of the tree down."""
-    out = []
-    while skeleton.parents[joint] >= 0:
-        joint = int(skeleton.parents[joint])
-        out.append(joint)
-    return out[::-1]
-
-
-def _depth(skeleton: Skeleton, joint: int) -> int:
-    return len(ancestors(skeleton, joint))
-
-
-def is_static(motion: Motion, joint: int, tolerance: float) -> bool:
-    """Whether `joint`'s local transform stays the same over the clip."""
-    rot = motion.rotations[:, joint]
-    pos = motion.positions[:, joint]
-    return bool(np.abs(rot - rot[:1]).max() < 1e-6 and np.abs(pos - pos[:1]).max() < tolerance)
-
-
-def world_transforms(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    """World positions (F, J, 3) and rotations (F, J, 3, 3) of every joint, file axes."""
-    pos, rot = forward_kinematics(
-        torch.tensor(motion.rotations), torch.tensor(motion.positions), motion.skeleton.parents, True
-    )
-    return pos.numpy(), rot.numpy()
-
-
-def rest_points(skeleton: Skeleton) -> np.ndarray:
-    """Rest-pose positions of every joint and End Site (identity rotations)."""
-    j = skeleton.num_joints
-    pos = forward_kinematics(
-        torch.eye(3, dtype=torch.float64).expand(j, 3, 3), torch.tensor(skeleton.offsets), skeleton.parents
-    ).numpy()
-    ends = [pos[joint] + offset for joint, offset in skeleton.end_sites.items()]
-    return np.concatenate([pos, np.reshape(ends, (-1, 3))])
 
 
 # ---------------------------------------------------------------- root and feet
@@ -158,29 +116,88 @@ def find_root(motion: Motion) -> tuple[int, list[str]]:
 
     From joint 0 down: while the joint is static over the clip and a joint below it has position
     channels, move to the shallowest such joint whose translation changes (or, if none does, the
-    shallowest with position channels).
+    shallowest with position channels). A joint that moves hands on to the joint where its one-child
+    chain branches into the body (the hips below a lone root) when that joint's translation moves or
+    leaves its OFFSET too: the translation is split between them (a root carrying the path, the hips
+    a bob), and the features keep only the lower joint's, with the upper one folded in per frame.
     """
     skeleton = motion.skeleton
     extent = max(np.ptp(rest_points(skeleton), axis=0).max(), 1e-9)
     tolerance = 1e-6 * extent
     joint, notes = 0, []
-    while is_static(motion, joint, tolerance):
+    while True:
+        if not is_static(motion, joint, tolerance):
+            carried = [j for j in _one_child_chain(skeleton, joint) if _own_translation(motion, j, tolerance)]
+            if not carried:
+                break
+            notes.append(
+                f"the translation is split between {skeleton.names[joint]!r} and "
+                f"{skeleton.names[carried[0]]!r}: root motion taken from {skeleton.names[carried[0]]!r}, "
+                f"{skeleton.names[joint]!r} folded into it on every frame"
+            )
+            joint = carried[0]
+            continue
         below = [j for j in subtree(skeleton, joint)[1:] if skeleton.position_order(j)]
         if not below:
             break
         moving = [j for j in below if np.ptp(motion.positions[:, j], axis=0).max() > tolerance]
         candidates = moving or below
-        best = min(candidates, key=lambda j: (_depth(skeleton, j), j))
+        best = min(candidates, key=lambda j: (depth(skeleton, j), j))
         notes.append(f"{skeleton.names[joint]!r} is static: root motion taken from {skeleton.names[best]!r}")
         joint = best
     return joint, notes
+
+
+def _one_child_chain(skeleton: Skeleton, joint: int) -> list[int]:
+    """The joints below `joint` while each link has one child: down to where the body branches."""
+    chain, children = [], skeleton.children(joint)
+    while len(children) == 1:
+        chain.append(children[0])
+        children = skeleton.children(children[0])
+    return chain
+
+
+def _own_translation(motion: Motion, joint: int, tolerance: float) -> bool:
+    """Whether `joint` has position channels whose values move or leave its OFFSET."""
+    if not motion.skeleton.position_order(joint):
+        return False
+    positions = motion.positions[:, joint]
+    return bool(
+        np.ptp(positions, axis=0).max() > tolerance
+        or np.abs(positions - motion.skeleton.offsets[joint]).max() > tolerance
+    )
+
+
+def find_carriers(motion: Motion, root: int) -> dict[str, list[int]]:
+    """Joints above the root whose translation moves, and the axes (of their parent's frame) it moves
+    along: on export they carry the root's path along those axes again, as the file had it."""
+    skeleton = motion.skeleton
+    tolerance = 1e-6 * max(np.ptp(rest_points(skeleton), axis=0).max(), 1e-9)
+    carriers = {}
+    for j in ancestors(skeleton, root):
+        axes = [a for a in range(3) if np.ptp(motion.positions[:, j, a]) > tolerance]
+        if axes:
+            carriers[skeleton.names[j]] = axes
+    return carriers
+
+
+def translation_off_offsets(motion: Motion, root: int, tolerance: float) -> list[tuple[int, float]]:
+    """Body joints below the root whose translation leaves their OFFSET by more than `tolerance` on
+    some frame, and by how much: motion the features (rotations below the root) cannot hold."""
+    skeleton, out = motion.skeleton, []
+    for j in subtree(skeleton, root)[1:]:
+        if skeleton.position_order(j):
+            off = float(np.linalg.norm(motion.positions[:, j] - skeleton.offsets[j], axis=-1).max())
+            if off > tolerance:
+                out.append((j, off))
+    return out
 
 
 def _leg_pair(skeleton: Skeleton, pairs: list[tuple[int, int]], root: int) -> tuple[int, int] | None:
     """The left/right pair nearest the root inside its subtree: the hips of the two legs."""
     body = set(subtree(skeleton, root))
     inside = [p for p in pairs if p[0] in body and p[1] in body]
-    return min(inside, key=lambda p: (_depth(skeleton, p[0]), p[0])) if inside else None
+    return min(inside, key=lambda p: (depth(skeleton, p[0]), p[0])) if inside else None
 
 
 def _chain_end(skeleton: Skeleton, joint: int) -> list[int]:
@@ -243,54 +260,6 @@ def find_feet(
 # ---------------------------------------------------------------- axes, height and units
 
 
-def find_up(world: np.ndarray, root: int, heels: list[int]) -> tuple[np.ndarray, float]:
-    """The signed file axis from the heels to the root over the clip (world positions (F, J, 3)), and
-    how many degrees the body's own up direction is off it."""
-    rise = (world[:, root] - world[:, heels].mean(axis=1)).mean(axis=0)
-    return _snap(rise, 90.0)
-
-
-def find_forward(motion, world, world_rot, root, pairs, turn, feet) -> tuple[np.ndarray, str]:
-    """The canonical root's local axis the body faces, and how it was found.
-
-    From the rest pose when there are left/right pairs: up (heels to root) x (right - left), in the
-    root's own frame, so every clip of a skeleton gives the same axis whatever it does. Without pairs,
-    the mean walking direction of the clip in the root's frame.
-    """
-    skeleton = motion.skeleton
-    if pairs and feet:
-        rest = rest_points(skeleton)[: skeleton.num_joints]
-        heels = [skeleton.index(feet["left_heel"]), skeleton.index(feet["right_heel"])]
-        # Rest positions relative to the root are in the root's own frame (every rotation is identity).
-        up = rest[root] - rest[heels].mean(axis=0)
-        lateral = np.mean([rest[b] - rest[a] for a, b in pairs], axis=0)
-        facing = turn @ np.cross(up, lateral)
-        if np.linalg.norm(facing) > 1e-9:
-            forward, angle = _snap(facing, 30.0)
-            return forward, f"rest pose: up x (right - left) ({angle:.0f} deg off the axis)"
-    rot = turn @ world_rot[:, root] @ turn.T  # canonical world rotation of the root
-    root_path = world[:, root] @ turn.T
-    facing = np.diff(root_path, axis=0, append=root_path[-1:])
-    facing[:, 1] = 0
-    norms = np.linalg.norm(facing, axis=1, keepdims=True)
-    if norms.max() < 1e-9:
-        return np.array([0.0, 0.0, 1.0]), "assumed +z (no left/right pairs and no walking)"
-    local = np.einsum("fji,fj->fi", rot, facing / np.maximum(norms, 1e-12))
-    forward, angle = _snap(local[norms[:, 0] > 1e-9].mean(axis=0), 30.0)
-    return forward, f"walking direction ({angle:.0f} deg off the axis)"
-
-
-def body_height(rest, skeleton, root, heels, feet) -> float:
-    """Extent of the rest pose (joints and End Sites) along the feet-to-root direction: the body's
-    height whatever way the rest pose is turned, T or A pose alike. Without feet: its largest extent."""
-    points = rest[: skeleton.num_joints]
-    feet_joints = heels + [skeleton.index(feet[k]) for k in ("left_toe", "right_toe")] if feet else []
-    up = points[root] - points[feet_joints].mean(axis=0) if feet_joints else np.zeros(3)
-    if np.linalg.norm(up) < 1e-9:
-        return float(np.ptp(rest, axis=0).max())
-    return float(np.ptp(rest @ (up / np.linalg.norm(up))))
-
-
 def units_of_height(height: float) -> tuple[float, str]:
     """Metres per unit and the unit's name for a body `height` units tall: the unit in which that is a
     human height, else what makes it ASSUMED_HEIGHT_M."""
@@ -309,9 +278,9 @@ def detect_fields(motion: Motion, overrides: dict | None = None) -> dict:
     root = detection.root()
     pairs = detection.mirror_pairs()
     feet = detection.feet(pairs, root)
-    up = detection.up(root, feet)
-    forward = detection.forward(root, pairs, feet, axis_rotation(up))
-    height = detection.body_height(root, feet)
+    up = detection.up(root, pairs, feet)
+    height = detection.body_height(root, feet, up)
+    forward = detection.forward(root, pairs, feet, up)
     metres, units = detection.units(height)
     speed, lift = detection.contact_thresholds(height)
     detection.check_root_motion(root, up, height)
@@ -333,6 +302,7 @@ def detect_fields(motion: Motion, overrides: dict | None = None) -> dict:
             for j in range(skeleton.num_joints)
             if j not in body
         },
+        carriers=find_carriers(motion, root),
         found=detection.found,
         notes=tuple(detection.notes),
     )
@@ -340,7 +310,10 @@ def detect_fields(motion: Motion, overrides: dict | None = None) -> dict:
 
 class _Detection:
     """One clip's profile, field by field: a field the configuration gives is taken as it is, any other
-    is found from the clip. `found` says how each was found, `notes` holds anything suspicious."""
+    is found from the clip. `found` says how each was found, `notes` holds anything suspicious.
+
+    Up, height and facing are measured on the posed frames (`walkdiff.motion.posed_frames`); the rest
+    pose gives height and facing (the same for every clip of a skeleton) only when it is a pose."""
 
     def __init__(self, motion: Motion, overrides: dict | None):
         overrides = dict(overrides or {})
@@ -354,6 +327,8 @@ class _Detection:
         self.notes: list[str] = []
         self.world, self.world_rot = world_transforms(motion)
         self.rest = rest_points(motion.skeleton)
+        self.head: int | None = None
+        self.rest_problem: str | None = None  # why the rest pose is no pose, once measured
 
     def root(self) -> int:
         if self.overrides.get("root") is not None:
@@ -400,7 +375,13 @@ class _Detection:
             [self.skeleton.index(feet["left_heel"]), self.skeleton.index(feet["right_heel"])] if feet else []
         )
 
-    def up(self, root: int, feet: dict[str, str]) -> np.ndarray:
+    def _feet_joints(self, feet: dict[str, str]) -> list[int]:
+        return [self.skeleton.index(feet[k]) for k in ("left_heel", "left_toe", "right_heel", "right_toe")]
+
+    def up(self, root: int, pairs, feet: dict[str, str]) -> np.ndarray:
+        """The file axis from the feet to the head over the clip (to the root without a head)."""
+        if feet:
+            self.head = posed.find_head(self.skeleton, root, pairs, self._feet_joints(feet))
         if self.overrides.get("up") is not None:
             self.found["up"] = "config"
             return _axis(self.overrides["up"], "profile.up")
@@ -408,37 +389,83 @@ class _Detection:
             self.found["up"] = "assumed (no feet to measure it from)"
             self.notes.append("up axis assumed +y: without feet it cannot be measured; set profile.up")
             return np.array([0.0, 1.0, 0.0])
-        up, angle = find_up(self.world, root, self._heels(feet))
-        self.found["up"] = f"feet to root ({angle:.0f} deg off the axis)"
+        top = self.head if self.head is not None else root
+        up, angle, share = posed.posed_up(self.world, top, self._heels(feet))
+        self.found["up"] = f"feet to {self.skeleton.names[top]} ({angle:.0f} deg off the axis)"
         if angle > 30:
             self.notes.append(
                 f"the body's up direction is {angle:.0f} deg off every axis: up taken as {axis_name(up)}"
             )
+        elif share < 0.9:
+            self.notes.append(
+                f"the body stands along {axis_name(up)} on only {share:.0%} of the frames (lying, rolling?)"
+            )
         return up
 
-    def forward(self, root: int, pairs, feet: dict[str, str], turn: np.ndarray) -> np.ndarray:
-        if self.overrides.get("forward") is not None:
-            self.found["forward"] = "config"
-            return _axis(self.overrides["forward"], "profile.forward")
-        forward, how = find_forward(self.motion, self.world, self.world_rot, root, pairs, turn, feet)
-        self.found["forward"] = how
-        if how.startswith("assumed"):
-            self.notes.append(f"facing direction not found: {how}")
-        return forward
-
-    def body_height(self, root: int, feet: dict[str, str]) -> float:
+    def body_height(self, root: int, feet: dict[str, str], up: np.ndarray) -> float:
+        """From the rest pose when it is a pose (same for every clip), else from the posed frames."""
+        rest = posed.rest_height(self.rest, self.skeleton, root, self._feet_joints(feet) if feet else [])
+        measured, how = None, ""
+        if feet:
+            heels = self._heels(feet)
+            self.rest_problem = posed.rest_pose_problem(self.rest, self.skeleton, root, heels, self.head)
+            if self.head is not None:
+                measured, how = posed.body_height_on_frames(
+                    self.world, self.world_rot, self.skeleton, self.head, heels, up
+                )
+        posed_text = f" (posed frames: {measured:.4g})" if measured is not None else ""
+        self.found["rest_pose"] = (
+            "not checked (no feet)" if not feet
+            else f"no pose: {self.rest_problem}" if self.rest_problem
+            else f"a standing pose, {rest:.4g} units tall{posed_text}"
+        )  # fmt: skip
+        if self.rest_problem:
+            self.notes.append(
+                f"the rest pose is no pose ({self.rest_problem}): body height and facing are measured on "
+                "the posed frames"
+                + ("" if measured is not None else ", but without a head the height is the rest pose's")
+            )
         if self.overrides.get("body_height") is not None:
             self.found["body_height"] = "config"
             return _positive(self.overrides["body_height"], "profile.body_height")
+        if self.rest_problem and measured is not None and measured > 0:
+            self.found["body_height"] = how
+            return measured
         self.found["body_height"] = "rest pose, heel to top, stood upright"
-        height = body_height(self.rest, self.skeleton, root, self._heels(feet), feet)
-        if not height > 0:  # one joint without an end site, or all offsets zero: units would divide by 0
+        if not rest > 0:  # one joint without an end site, or all offsets zero: units would divide by 0
             raise WalkdiffError(
                 "the rest pose is a single point (every joint and end site at the root), so it has no body "
                 "height to find the units and contact thresholds from: give the profile a body_height in "
                 "file units (--profile FILE, or data.profile)"
             )
-        return height
+        return rest
+
+    def forward(self, root: int, pairs, feet: dict[str, str], up: np.ndarray) -> np.ndarray:
+        """The canonical root's local axis the body faces: from the rest pose when it is a pose (every clip
+        of a skeleton gives the same), else from the posed frames, else from the walking direction."""
+        if self.overrides.get("forward") is not None:
+            self.found["forward"] = "config"
+            return _axis(self.overrides["forward"], "profile.forward")
+        turn = axis_rotation(up)
+        rest = None if self.rest_problem else posed.rest_forward(self.rest, root, self._heels(feet), pairs)
+        if rest is not None:
+            forward, angle = _snap(turn @ rest, 30.0)
+            self.found["forward"] = f"rest pose: up x (right - left) ({angle:.0f} deg off the axis)"
+            return forward
+        measured = posed.posed_forward(
+            self.world, self.world_rot, self.skeleton, root, pairs, self._heels(feet), up, self.head
+        )
+        if measured is not None:
+            self.found["forward"] = f"posed frames: up x (right - left) (heading {measured[1]:.0f} deg off)"
+            return _snap(turn @ measured[0], 0.5)[0]  # an axis stays exact through the turn
+        facing = posed.walking_forward(self.world, self.world_rot, root, up)
+        if facing is None:
+            self.found["forward"] = "assumed +z (no left/right pairs and no walking)"
+            self.notes.append(f"facing direction not found: {self.found['forward']}")
+            return np.array([0.0, 0.0, 1.0])
+        forward, angle = _snap(turn @ facing, 30.0)
+        self.found["forward"] = f"walking direction ({angle:.0f} deg off the axis)"
+        return forward
 
     def units(self, height: float) -> tuple[float, str]:
         """Metres per unit and the units' name."""
@@ -470,15 +497,24 @@ class _Detection:
         return speed, lift
 
     def check_root_motion(self, root: int, up: np.ndarray, height: float) -> None:
-        """Notes on joints above the root that move (export cannot keep that) and on a root that stays
-        while the body moves (the root motion is likely elsewhere)."""
+        """Notes on joints above the root that move (export rebuilds their path, not their turn), on
+        translation below the root (the features do not keep it) and on a root that stays while the body
+        moves (the root motion is likely elsewhere)."""
         skeleton, motion, world = self.skeleton, self.motion, self.world
         extent = float(np.ptp(self.rest, axis=0).max())
         for j in ancestors(skeleton, root):
-            if not is_static(motion, j, 1e-6 * extent):
+            if np.abs(motion.rotations[:, j] - motion.rotations[:1, j]).max() > 1e-6:
                 self.notes.append(
-                    f"{skeleton.names[j]!r} above the root moves: export puts it back at frame 0's pose"
+                    f"{skeleton.names[j]!r} above the root turns: export keeps its frame-0 turn and puts the "
+                    "rest on the root (world positions are kept)"
                 )
+        lost = translation_off_offsets(motion, root, LOST_TRANSLATION * height)
+        if lost:
+            shown = ", ".join(f"{skeleton.names[j]!r} (up to {d:.3g} units)" for j, d in lost[:4])
+            self.notes.append(
+                f"translation below the root {skeleton.names[root]!r} leaves the bone offsets on {shown}: "
+                "the features keep only the root's, so such clips do not convert back"
+            )
         moved = np.linalg.norm(
             np.diff(world[:, root][:, [i for i in range(3) if not up[i]]], axis=0), axis=1
         ).sum()
