@@ -43,16 +43,21 @@ class RecordSteps(L.Callback):
 
 def tiny_fit_config(root: Path, name: str, *, epochs: int, batches: int, callbacks: list[dict]) -> str:
     """A `walkdiff fit` config of a tiny StyledMotionDiffusion on the synthetic data in `root`: an MLflow
-    sqlite store and checkpoints (`RunCheckpoint`, last every epoch) under the working directory."""
+    sqlite store and checkpoints (`RunCheckpoint`, last every epoch) under the working directory.
+
+    Bounded by steps as walkdiff's own configs are: `epochs` passes of `batches` batches, validated
+    after each."""
     extra = "".join(f"    - {json.dumps(c)}\n" for c in callbacks)
     return f"""\
 seed_everything: 3
 trainer:
   accelerator: cpu
   devices: 1
-  max_epochs: {epochs}
+  max_steps: {epochs * batches}
   max_time: "00:00:10:00"
   limit_train_batches: {batches}
+  val_check_interval: {batches}
+  check_val_every_n_epoch: null
   limit_val_batches: 1
   num_sanity_val_steps: 0
   log_every_n_steps: 1
@@ -71,7 +76,7 @@ trainer:
         dirpath: checkpoints/{name}
         filename: last
         save_top_k: 1
-        save_on_train_epoch_end: true
+        every_n_train_steps: {batches}
 {extra}model:
   class_path: walkdiff.models.styled_ddpm.StyledMotionDiffusion
   init_args:

@@ -333,6 +333,6 @@ def test_sample_callback_writes_held_out_audio_clips(trained, tmp_path):
 
     model = load_model(trained[0])
     dm = SpeechDataModule(str(trained[1]), window=40, past=5, lookahead=8)
-    files = GestureSamples(seconds=1.0).write(model, dm, None, "samples/epoch_0001", folder=tmp_path)
+    files = GestureSamples(seconds=1.0).write(model, dm, None, "samples/step_000001", folder=tmp_path)
     assert [f.name for f in files] == ["a.bvh", "a.gif", "a.mp4"]
     assert read_bvh(files[0]).num_frames == 20

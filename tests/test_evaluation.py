@@ -157,7 +157,7 @@ def test_callback_logs_metrics_and_images(setup, tmp_path):
         tracking_uri=f"sqlite:///{tmp_path}/mlflow.db",
         artifact_location=str(tmp_path / "artifacts"),
     )
-    callback = MotionMetrics(str(setup["ckpt"]), every_n_epochs=1, num_samples=24, sampler="ddim", steps=2)
+    callback = MotionMetrics(str(setup["ckpt"]), every_n_steps=2, num_samples=24, sampler="ddim", steps=2)
     trainer = tiny_trainer(
         max_epochs=1,
         limit_train_batches=2,
@@ -174,8 +174,8 @@ def test_callback_logs_metrics_and_images(setup, tmp_path):
     client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")
     run = client.get_run(logger.run_id)
     assert "metrics/fmd" in run.data.metrics
-    images = {a.path for a in client.list_artifacts(logger.run_id, "metrics/epoch_0001")}
-    assert images == {"metrics/epoch_0001/style_confusion.png", "metrics/epoch_0001/feature_pca.png"}
+    images = {a.path for a in client.list_artifacts(logger.run_id, "metrics/step_000002")}
+    assert images == {"metrics/step_000002/style_confusion.png", "metrics/step_000002/feature_pca.png"}
     for name in images:
         path = client.download_artifacts(logger.run_id, name, str(tmp_path))
         assert Path(path).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

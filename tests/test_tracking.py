@@ -36,7 +36,7 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     slow = {"class_path": "probes.SleepEachBatch", "init_args": {"seconds": 0.4}}  # > 1 s: system metrics
     samples = {
         "class_path": "walkdiff.callbacks.samples.SampleClips",
-        "init_args": {"every_n_epochs": 1, "sampler": "ddim", "steps": 2, "seconds": 2},
+        "init_args": {"every_n_steps": 2, "sampler": "ddim", "steps": 2, "seconds": 2},
     }
     config = tmp_path / "glance.yaml"
     config.write_text(
@@ -56,13 +56,13 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     params = run.data.params
     # One parameter per setting, none twice (no `lambda_adv` beside `model.init_args.lambda_adv`).
     assert params["model.lambda_adv"] == "0.05" and params["data.window"] == "24"
-    assert params["trainer.max_epochs"] == "2" and params["model"] == "StyledMotionDiffusion"
+    assert params["trainer.max_steps"] == "4" and params["model"] == "StyledMotionDiffusion"
     sections = ("model.", "data.", "trainer.")
     assert all(key in ("seed_everything", "model", "data") or key.startswith(sections) for key in params)
     assert not [key for key in params if "init_args" in key or "callbacks" in key or "logger" in key]
     assert "lambda_adv" not in params
     # The hyperparameters: every argument of the model and data module, and the trainer settings the
-    # config changes (max_epochs, limit_train_batches, ...); the rest of the trainer is Lightning's own.
+    # config changes (max_steps, limit_train_batches, ...); the rest of the trainer is Lightning's own.
     import inspect
 
     from walkdiff.data.datamodule import MotionDataModule
@@ -85,9 +85,9 @@ def test_a_fit_run_reads_at_a_glance(tiny_root, tmp_path, monkeypatch):
     filmstrips = [
         path for path in images if path.startswith("images/samples~styles+step+") and path.endswith(".png")
     ]
-    assert len(filmstrips) == 2, images  # epochs 1 and 2
-    epochs = {a.path for a in client.list_artifacts(run.info.run_id, "samples")}
-    assert epochs == {"samples/epoch_0001", "samples/epoch_0002"}
+    assert len(filmstrips) == 2, images  # after batches 2 and 4
+    previews = {a.path for a in client.list_artifacts(run.info.run_id, "samples")}
+    assert previews == {"samples/step_000002", "samples/step_000004"}
 
     files = {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")}
     assert files == {"checkpoints/best.ckpt", "checkpoints/last.ckpt", "checkpoints/index.json"}

@@ -255,8 +255,8 @@ def test_the_foot_height_loss_measures_the_feet_in_the_world_in_contact_heights(
 
 
 def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_root, tmp_path, monkeypatch):
-    """Bounded by epochs (max_time only a safety net), the same command and seed train the same number
-    of epochs and steps, to the same validation losses, on a fast and a slow machine. The rerun's
+    """Bounded by steps (max_time only a safety net), the same command and seed train the same number
+    of steps, to the same validation losses, on a fast and a slow machine. The rerun's
     checkpoints go to a folder of their own and last.ckpt follows them."""
     from walkdiff.cli.main import main
 
@@ -279,7 +279,9 @@ def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_roo
         assert (tmp_path / "checkpoints" / "same" / "last.ckpt").resolve() == newest / "last.ckpt"
     normal, slowed = records["normal"], records["slowed"]
     assert normal["epochs"] == slowed["epochs"] == 3
-    assert normal["last_step"] == slowed["last_step"] == 3 * 3 * 2  # generator and discriminator steps
+    assert (
+        normal["last_step"] == slowed["last_step"] == 3 * 3
+    )  # batches: the discriminator's step is not counted
     assert len(normal["val_loss"]) == 3
     assert slowed["val_loss"] == pytest.approx(normal["val_loss"], abs=1e-4)
     # The learning-rate cosine spans the planned steps: it ends at its floor, 0.1 of the peak.
@@ -341,14 +343,13 @@ def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_p
     assert len(list(tmp_path.glob("earlier-*"))) == 1
 
 
-def test_bar_rows_find_the_first_epoch_at_bar_and_the_one_from_which_it_stays():
+def test_bar_rows_find_the_first_measurement_at_bar_and_the_one_from_which_it_stays():
     from walkdiff.bench.time_to_bar import _bar_rows, _first
 
     bar = {"style_acc": 0.8, "fmd": 10.0, "skate_ratio": 0.2}
     values = [(0.5, 50.0, 0.1), (0.9, 9.0, 0.1), (0.9, 11.0, 0.1), (0.9, 8.0, 0.2), (1.0, 7.0, 0.15)]
     history = [
         {
-            "epoch": 2 * (i + 1),
             "batches": 10 * (i + 1),
             "seconds": 1.0,
             "style_acc": s,
@@ -357,13 +358,13 @@ def test_bar_rows_find_the_first_epoch_at_bar_and_the_one_from_which_it_stays():
         }
         for i, (s, f, k) in enumerate(values)
     ]
-    epochs = {2 * (i + 1): {"wall_s": 5.0 * (i + 1), "train_loop_s": 3.0 * (i + 1)} for i in range(5)}
-    rows = _bar_rows(history, epochs, bar)
+    times = {10 * (i + 1): {"wall_s": 5.0 * (i + 1), "train_loop_s": 3.0 * (i + 1)} for i in range(5)}
+    rows = _bar_rows(history, times, bar)
     assert [r["at_bar"] for r in rows] == [False, True, False, True, True]  # 11 > 10; 0.2 <= 0.2 holds
     assert [r["training_s"] for r in rows] == [4.0, 8.0, 12.0, 16.0, 20.0]  # wall minus the measurements
     found = _first(rows, "at_bar")
-    assert found["first"]["epoch"] == 4 and found["from_then_on"]["epoch"] == 8
-    assert _first(rows, "fmd_ok")["from_then_on"]["epoch"] == 8
+    assert found["first"]["batches"] == 20 and found["from_then_on"]["batches"] == 40
+    assert _first(rows, "fmd_ok")["from_then_on"]["batches"] == 40
     assert _first(rows[:1], "at_bar") == {"first": None, "from_then_on": None}
 
 
@@ -392,7 +393,7 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
     metrics = {
         "class_path": "walkdiff.callbacks.metrics.MotionMetrics",
         # --evaluator replaces the config's evaluator: this one does not exist
-        "init_args": {"evaluator_ckpt": "missing.ckpt", "every_n_epochs": 1, "num_samples": 16,
+        "init_args": {"evaluator_ckpt": "missing.ckpt", "every_n_steps": 3, "num_samples": 16,
                       "sampler": "ddim", "steps": 2, "batch_size": 16},
     }  # fmt: skip
     config = tmp_path / "bar.yaml"
@@ -406,15 +407,15 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
     )
     out = Path("bar.json")
     args = ["bench", "train", "--to-bar", "--config", str(config), "--evaluator", str(evaluator)]
-    assert main(args + ["--repeats", "2", "--out", str(out), "--", "--trainer.max_epochs", "2"]) == 0
+    assert main(args + ["--repeats", "2", "--out", str(out), "--", "--trainer.max_steps", "6"]) == 0
     early = json.loads((tmp_path / "early.json").read_text())
-    assert not early["finished"] and [r["epoch"] for r in early["measurements"]] == [1]
+    assert not early["finished"] and [r["batches"] for r in early["measurements"]] == [3]
 
     result = json.loads(out.read_text())
-    assert result["finished"] and result["fit_args"] == ["--trainer.max_epochs", "2"]
+    assert result["finished"] and result["fit_args"] == ["--trainer.max_steps", "6"]
     rows = result["measurements"]
-    assert [(r["epoch"], r["batches"]) for r in rows] == [(1, 3), (2, 6)]
-    assert result["epochs"] == result["max_epochs"] == 2 and result["batches"] == 6
+    assert [r["batches"] for r in rows] == [3, 6]
+    assert result["max_steps"] == result["batches"] == 6
     assert all(r["metrics_s"] > 0 and 0 < r["train_loop_s"] <= r["training_s"] < r["wall_s"] for r in rows)
     assert rows[0]["training_s"] < rows[1]["training_s"]
     assert result["training_s"] + result["metrics_s"] >= rows[-1]["wall_s"] - 0.1
@@ -425,8 +426,8 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
         for r in rows:
             assert r[f"{name}_ok"] == (r[name] >= bar if kind == "min" else r[name] <= bar)
     assert [r["at_bar"] for r in rows] == [all(r[f"{n}_ok"] for n in BAR) for r in rows]
-    first = next((r["epoch"] for r in rows if r["at_bar"]), None)
-    assert (result["time_to_bar"]["first"] or {}).get("epoch") == first
+    first = next((r["batches"] for r in rows if r["at_bar"]), None)
+    assert (result["time_to_bar"]["first"] or {}).get("batches") == first
     run = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlruns/mlflow.db").get_run(result["mlflow_run_id"])
     assert run.info.status == "FINISHED" and "metrics/fmd" in run.data.metrics
 

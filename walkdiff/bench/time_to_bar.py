@@ -19,18 +19,18 @@ BAR = {"style_acc": ("min", 0.9), "fmd": ("max", 2.0), "skate_ratio": ("max", 1.
 
 
 class _TimeToBar:
-    """A Lightning callback timing a run (wall time since training started, and the training epochs'
-    batch loops alone) that rewrites the time-to-bar report after every MotionMetrics measurement, so an
-    interrupted run still says how far it got."""
+    """A Lightning callback timing a run (wall time since training started, and the batch loops alone:
+    the wall time less validations, metrics and previews) that rewrites the time-to-bar report after
+    every MotionMetrics measurement, so an interrupted run still says how far it got."""
 
     def __init__(self, out: str, config: str, evaluator: str | None, repeats: int, fit_args: list[str]):
         import lightning as L
 
         self.out, self.config, self.evaluator, self.repeats = out, config, evaluator, repeats
         self.fit_args = fit_args
-        self.started = self.epoch_started = None
-        self.loop_s = 0.0
-        self.at_validation: dict[int, dict] = {}  # epoch -> times when its validation (and metrics) ended
+        self.started = self.validation_started = None
+        self.validation_s = 0.0
+        self.at_validation: dict[int, dict] = {}  # batches trained -> times when that validation ended
         self.real: dict[str, float] | None = None
         self.load_before = os.getloadavg()
         bench = self
@@ -43,32 +43,23 @@ class _TimeToBar:
             def on_train_start(cb, trainer, pl_module):
                 bench.started = time.perf_counter()
 
-            def on_train_epoch_start(cb, trainer, pl_module):
-                bench.epoch_started = time.perf_counter()
-
             def on_validation_start(cb, trainer, pl_module):
-                bench.end_of_batches()
+                bench.validation_started = time.perf_counter()
 
             def on_validation_end(cb, trainer, pl_module):
                 if trainer.sanity_checking:
                     return
-                bench.at_validation[trainer.current_epoch + 1] = bench.times()
+                bench.validation_s += time.perf_counter() - bench.validation_started
+                bench.at_validation[trainer.global_step] = bench.times()
                 metrics = _metrics_callback(trainer)
-                if metrics.history and metrics.history[-1]["epoch"] == trainer.current_epoch + 1:
+                if metrics.history and metrics.history[-1]["batches"] == trainer.global_step:
                     bench.report(trainer, finished=False)
-
-            def on_train_epoch_end(cb, trainer, pl_module):
-                bench.end_of_batches()
 
         self.callback = Callback()
 
-    def end_of_batches(self) -> None:
-        if self.epoch_started is not None:
-            self.loop_s += time.perf_counter() - self.epoch_started
-            self.epoch_started = None
-
     def times(self) -> dict:
-        return {"wall_s": time.perf_counter() - self.started, "train_loop_s": self.loop_s}
+        wall = time.perf_counter() - self.started
+        return {"wall_s": wall, "train_loop_s": wall - self.validation_s}
 
     def report(self, trainer, finished: bool) -> dict:
         from walkdiff.callbacks.checkpoints import mlflow_logger
@@ -89,12 +80,11 @@ class _TimeToBar:
             "fit_args": self.fit_args,
             "evaluator": metrics.evaluator_ckpt,
             "mlflow_run_id": None if logger is None else logger.run_id,
-            "epochs": trainer.current_epoch + (0 if finished else 1),
-            "max_epochs": trainer.max_epochs,
-            "batches": trainer.lightning_module.batches_done,
+            "batches": trainer.global_step,
+            "max_steps": trainer.max_steps,
             "batches_per_epoch": trainer.num_training_batches,
             "metrics": {
-                "every_n_epochs": metrics.every_n_epochs,
+                "every_n_steps": metrics.due.every_n_steps,
                 "num_samples": metrics.num_samples,
                 "sampler": metrics.sampler,
                 "steps": metrics.steps,
@@ -138,13 +128,12 @@ def _metrics_callback(trainer):
 
 
 def _bar_rows(history: list[dict], times: dict[int, dict], bar: dict[str, float]) -> list[dict]:
-    """Per measurement: epoch, batches, times, each metric against its bar, and whether all three hold."""
+    """Per measurement: batches, times, each metric against its bar, and whether all three hold."""
     rows, metrics_s = [], 0.0
     for measured in history:
         metrics_s += measured["seconds"]
-        clock = times[measured["epoch"]]
+        clock = times[measured["batches"]]
         row = {
-            "epoch": measured["epoch"],
             "batches": measured["batches"],
             # Everything since training started except the metric measurements themselves: the
             # batches, validation, checkpoints and any other callbacks the config has.
@@ -170,7 +159,7 @@ def _first(rows: list[dict], key: str) -> dict | None:
         if not row[key]:
             break
         stays = row
-    pick = ("epoch", "batches", "training_s", "train_loop_s", "wall_s")
+    pick = ("batches", "training_s", "train_loop_s", "wall_s")
     return {
         "first": None if first is None else {k: first[k] for k in pick},
         "from_then_on": None if stays is None else {k: stays[k] for k in pick},
@@ -184,15 +173,15 @@ def bench_time_to_bar(
     repeats: int = 5,
     fit_args: list[str] | tuple[str, ...] = (),
 ) -> dict:
-    """Trains CONFIG exactly as `walkdiff fit --config CONFIG` does (bounded by its epochs, with its
+    """Trains CONFIG exactly as `walkdiff fit --config CONFIG` does (bounded by its steps, with its
     MLflow run and checkpoints) and reads its MotionMetrics measurements against the quality bar.
 
     The real references are the callback's own numbers for real windows of the test split (as many as
     it generates, `repeats` draws, averaged): held-out windows scored against the same training
     windows, by the same evaluator. Writes OUT (JSON) after every measurement and at the end: per
-    measurement the epoch, the batches trained, the training time without the measurements (and the
-    batch loops alone), the measurement's own time, each metric against its bar, and the first epoch
-    where all three hold.
+    measurement the batches trained, the training time without the measurements (and the
+    batch loops alone), the measurement's own time, each metric against its bar, and the first
+    measurement where all three hold.
     """
     from walkdiff.callbacks.fit import lightning_cli
 
@@ -204,9 +193,9 @@ def bench_time_to_bar(
     metrics = _metrics_callback(trainer)
     if not metrics.history:
         raise WalkdiffError(
-            f"the run made no metrics measurement: MotionMetrics measures every {metrics.every_n_epochs} "
-            f"epochs, after a validation (trainer.check_val_every_n_epoch), and it trained "
-            f"{trainer.current_epoch} epochs",
+            f"the run made no metrics measurement: MotionMetrics measures every "
+            f"{metrics.due.every_n_steps} batches, after a validation (trainer.val_check_interval), and "
+            f"it trained {trainer.global_step} batches",
             path=config,
         )
     return bench.report(trainer, finished=True)

@@ -32,8 +32,12 @@ def lightning_cli(args: list[str] | None, callbacks: list | None = None):
             parser.link_arguments("data.spec", "model.init_args.data_spec", apply_on="instantiate")
 
         def before_fit(self) -> None:
+            from walkdiff.callbacks.clock import ProgressLog
+
             open_run(self.trainer)
             self.trainer.callbacks.extend(callbacks or [])
+            if not sys.stderr.isatty():  # a terminal has Lightning's progress bar; a log file gets lines
+                self.trainer.callbacks.append(ProgressLog())
 
         def after_fit(self) -> None:
             report_fit(self.trainer)
@@ -83,7 +87,7 @@ def open_run(trainer) -> None:
 
 
 def report_fit(trainer) -> None:
-    """After `fit`: where the checkpoints are, and whether max_time cut the planned epochs short.
+    """After `fit`: where the checkpoints are, and whether max_time cut the planned steps short.
 
     A run stopped by time depends on the machine's speed (a busy machine trains fewer epochs), so it is
     said on the console and tagged in the MLflow run.
@@ -92,19 +96,19 @@ def report_fit(trainer) -> None:
 
     from walkdiff.callbacks.checkpoints import RunCheckpoint
 
-    planned, done = trainer.max_epochs, trainer.current_epoch
+    planned, done = trainer.max_steps, trainer.global_step
     timer = next((c for c in trainer.callbacks if isinstance(c, Timer)), None)
     timed_out = timer is not None and (timer.time_remaining("train") or 0) <= 0
-    if timed_out and not (planned is not None and 0 < planned <= done):
+    if timed_out and not 0 < planned <= done:
         message = (
-            f"max_time stopped training after epoch {done} of {planned}: on a slower or busier machine "
-            "the same command trains fewer epochs; --trainer.max_time null trains them all"
+            f"max_time stopped training after step {done} of {planned}: on a slower or busier machine "
+            "the same command trains fewer steps; --trainer.max_time null trains them all"
         )
         print(f"walkdiff: {message}", file=sys.stderr)
         logger = trainer.logger
         if logger is not None and hasattr(logger, "run_id") and hasattr(logger.experiment, "set_tag"):
             logger.experiment.set_tag(
-                logger.run_id, "walkdiff.stopped_by_max_time", f"epoch {done} of {planned}"
+                logger.run_id, "walkdiff.stopped_by_max_time", f"step {done} of {planned}"
             )
     run_dirs = {c.run_dir for c in trainer.checkpoint_callbacks if isinstance(c, RunCheckpoint)} - {None}
     for run_dir in sorted(run_dirs):

@@ -1,4 +1,4 @@
-"""Every N epochs: the evaluation protocol on a fixed number of generated windows, into the MLflow run."""
+"""Every N batches trained: the evaluation protocol on generated windows, into the MLflow run."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 from torchmetrics.classification import MulticlassConfusionMatrix
 
 from walkdiff.callbacks.checkpoints import mlflow_logger
+from walkdiff.callbacks.clock import Due, step_folder
 from walkdiff.callbacks.tracking import checkpoint_tags
 from walkdiff.common.checkpoints import expect_class
 from walkdiff.common.errors import WalkdiffError
@@ -29,15 +30,15 @@ from walkdiff.evaluation.scorer import (
 
 class MotionMetrics(L.Callback):
     """Logs `metrics/fmd`, `metrics/style_acc`, `metrics/diversity`, `metrics/skate_ratio`, ... and the
-    images `metrics/epoch_NNNN/style_confusion.png` and `metrics/epoch_NNNN/feature_pca.png`.
+    images `metrics/step_NNNNNN/style_confusion.png` and `metrics/step_NNNNNN/feature_pca.png`.
 
     Rank 0 generates and scores; the values are broadcast so that every rank logs the same numbers (and a
     ModelCheckpoint may monitor them). The real windows are embedded once; the generation noise is
-    the same at every epoch, so successive values differ by the model only.
+    the same at every measurement, so successive values differ by the model only.
 
     Args:
         evaluator_ckpt: checkpoint of a trained `MotionEvaluator`.
-        every_n_epochs: measure after the validation of every N-th epoch.
+        every_n_steps: measure after the first validation past every N batches trained.
         num_samples: generated windows, balanced over styles (and over the data's content selection).
         sampler, steps, guidance: passed to the model's `generate`.
         batch_size: windows generated at once.
@@ -45,14 +46,14 @@ class MotionMetrics(L.Callback):
         split: the real windows FMD is measured against. 'train' by default: a checkpoint chosen on
             these numbers must not have seen the test split, and validation has too few windows.
 
-    `history` keeps every measurement (epoch, batches trained, its own seconds, the values) for
+    `history` keeps every measurement (batches trained, its own seconds, the values) for
     `walkdiff bench train --to-bar`, which also asks `held_out_reference` what real windows score.
     """
 
     def __init__(
         self,
         evaluator_ckpt: str,
-        every_n_epochs: int = 5,
+        every_n_steps: int = 500,
         num_samples: int = 256,
         sampler: str = "ddpm",
         steps: int | None = None,
@@ -63,7 +64,7 @@ class MotionMetrics(L.Callback):
     ):
         self.split = split
         self.evaluator_ckpt = evaluator_ckpt
-        self.every_n_epochs = every_n_epochs
+        self.due = Due(every_n_steps)
         self.num_samples = num_samples
         self.sampler = sampler
         self.steps = steps
@@ -75,7 +76,7 @@ class MotionMetrics(L.Callback):
         self.history: list[dict] = []
 
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        # Fail now, not after the first epochs: a missing, unsafe or wrong kind of evaluator file.
+        # Fail now, not after the first measurement: a missing, unsafe or wrong kind of evaluator file.
         if not Path(self.evaluator_ckpt).exists():
             raise WalkdiffError(
                 "evaluator checkpoint not found; train it first with `make evaluator` "
@@ -89,16 +90,15 @@ class MotionMetrics(L.Callback):
                 logger.experiment.set_tag(logger.run_id, key, value)
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        epoch = trainer.current_epoch + 1
-        if trainer.sanity_checking or epoch % self.every_n_epochs:
+        step = self.due(trainer, rank_zero_only=False)  # every rank logs the broadcast values
+        if step is None:
             return
         values = None
         if trainer.is_global_zero:
             started = time.perf_counter()
-            values = self.measure(trainer, pl_module, f"metrics/epoch_{epoch:04d}")
+            values = self.measure(trainer, pl_module, step_folder("metrics", step))
             seconds = time.perf_counter() - started
-            batches = getattr(pl_module, "batches_done", trainer.global_step)
-            self.history.append({"epoch": epoch, "batches": batches, "seconds": seconds} | values)
+            self.history.append({"batches": step, "seconds": seconds} | values)
         values = trainer.strategy.broadcast(values, src=0)
         for name, value in values.items():
             pl_module.log(f"metrics/{name}", value, on_step=False, on_epoch=True, sync_dist=False)

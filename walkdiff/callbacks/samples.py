@@ -1,10 +1,11 @@
-"""Every N epochs, previews of what the model makes into the MLflow run: a style grid (`SampleClips`) for
-the styled generator, a walk along a fixed path (`WalkSamples`) for the path walker.
+"""Every N batches trained, previews of what the model makes into the MLflow run: a style grid
+(`SampleClips`) for the styled generator, a walk along a fixed path (`WalkSamples`) for the path walker,
+a gesture take (`GestureSamples`) for the gesture model.
 
 The style grid has one row per style: a real clip of that style and content from the training data
-(the same clip every epoch) beside a generated one (from the same seed every epoch), so the epochs
-compare. It is logged as a still (`render_strobe`, the run's image `samples/styles` at the epoch's
-step, so MLflow's image view steps through the epochs) and as a GIF (and MP4) beside the BVH files.
+(the same clip every time) beside a generated one (from the same seed every time), so the previews
+compare. It is logged as a still (`render_strobe`, the run's image `samples/styles` at the training
+step, so MLflow's image view steps through training) and as a GIF (and MP4) beside the BVH files.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import torch
 from PIL import Image
 
 from walkdiff.autoregressive import gesture
+from walkdiff.callbacks.clock import Due, step_folder
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.tracking import log_file
 from walkdiff.motion.bvh import write_bvh
@@ -55,7 +57,7 @@ def looped(positions: np.ndarray, frames: int) -> np.ndarray:
 
 def real_references(datamodule, styles: list[str], content: str) -> dict[str, tuple[str, np.ndarray]]:
     """Per style, (clip name, raw features) of the longest clip of that style and content in the training
-    split (else the validation split): a fixed reference, the same at every epoch."""
+    split (else the validation split): a fixed reference, the same at every preview."""
     if not hasattr(datamodule, "split_features"):
         return {}
     contents = list(datamodule.spec.contents)
@@ -72,18 +74,9 @@ def real_references(datamodule, styles: list[str], content: str) -> dict[str, tu
     return found
 
 
-def preview_epoch(trainer: L.Trainer, every_n_epochs: int) -> int | None:
-    """The 1-based epoch when a preview is due after this validation (every N epochs, on rank 0, not in
-    the sanity check), else None."""
-    epoch = trainer.current_epoch + 1
-    if trainer.sanity_checking or epoch % every_n_epochs or not trainer.is_global_zero:
-        return None
-    return epoch
-
-
 class SampleClips(L.Callback):
-    """Logs `samples/epoch_NNNN/<style>_<content>.bvh`, `styles.gif` (and `styles.mp4`) and the still
-    `styles.png`, which is also the run's image `samples/styles` at the epoch's step.
+    """Every N batches trained, logs `samples/step_NNNNNN/<style>_<content>.bvh`, `styles.gif` (and
+    `styles.mp4`) and the still `styles.png`, which is also the run's image `samples/styles` at that step.
 
     Clips are `seconds` long (default 4 s: several gait cycles), made window by window as `walkdiff
     sample` makes them; `frames` (one window when neither is given) overrides it. With `real` (and a
@@ -94,7 +87,7 @@ class SampleClips(L.Callback):
 
     def __init__(
         self,
-        every_n_epochs: int = 5,
+        every_n_steps: int = 1000,
         content: str = "walk",
         frames: int | None = None,
         seconds: float | None = 4.0,
@@ -104,7 +97,7 @@ class SampleClips(L.Callback):
         real: bool = True,
         video: bool = False,
     ):
-        self.every_n_epochs = every_n_epochs
+        self.due = Due(every_n_steps)
         self.content = content
         self.video = video
         self.frames = frames
@@ -116,14 +109,14 @@ class SampleClips(L.Callback):
         self.references: dict[str, tuple[str, np.ndarray]] | None = None
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        epoch = preview_epoch(trainer, self.every_n_epochs)
-        if epoch is None:
+        step = self.due(trainer)
+        if step is None:
             return
         if self.references is None:
             styles = list(pl_module.spec["styles"])
             datamodule = getattr(trainer, "datamodule", None)
             self.references = real_references(datamodule, styles, self.content) if self.real else {}
-        self.write(pl_module, trainer.logger, f"samples/epoch_{epoch:04d}", step=trainer.global_step)
+        self.write(pl_module, trainer.logger, step_folder("samples", step), step=step)
 
     @torch.no_grad()
     def write(
@@ -195,31 +188,31 @@ TEST_PATH = ((0.0, 0.0), (0.8, 0.0), (1.6, 0.4), (2.4, 0.0), (3.2, -0.4), (4.0, 
 
 
 class WalkSamples(L.Callback):
-    """Every N epochs the path walker walks a fixed path (`points`, [x, z] in metres) as `style` (by
-    default the first style with walks in the training data) at its training pace, and logs
-    `samples/epoch_NNNN/<style>_walk.bvh`, its GIF and MP4 with the path drawn on the ground, the still
-    `walk.png` (the run's image `samples/walk` at the epoch's step) and the top-down plot
+    """Every N batches trained, the path walker walks a fixed path (`points`, [x, z] in metres) as `style`
+    (by default the first style with walks in the training data) at its training pace, and logs
+    `samples/step_NNNNNN/<style>_walk.bvh`, its GIF and MP4 with the path drawn on the ground, the still
+    `walk.png` (the run's image `samples/walk` at that step) and the top-down plot
     `walk_path.png` (image `samples/walk_path`)."""
 
     def __init__(
         self,
-        every_n_epochs: int = 5,
+        every_n_steps: int = 1000,
         points: list[list[float]] | None = None,
         style: str | None = None,
         seed: int = 0,
     ):
         from walkdiff.motion.path import Polyline
 
-        self.every_n_epochs = every_n_epochs
+        self.due = Due(every_n_steps)
         self.metres = Polyline.of(TEST_PATH if points is None else points)
         self.style = style
         self.seed = seed
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        epoch = preview_epoch(trainer, self.every_n_epochs)
-        if epoch is None:
+        step = self.due(trainer)
+        if step is None:
             return
-        self.write(pl_module, trainer.logger, f"samples/epoch_{epoch:04d}", step=trainer.global_step)
+        self.write(pl_module, trainer.logger, step_folder("samples", step), step=step)
 
     @torch.no_grad()
     def write(
@@ -266,20 +259,20 @@ class WalkSamples(L.Callback):
 
 
 class GestureSamples(L.Callback):
-    """Every N epochs: a sample of the first take's held-out audio as BVH + GIF into the MLflow run.
-
-    Logged as `samples/epoch_NNNN/<take>.bvh` and `.gif`, always from the same seed, so successive
-    epochs can be compared.
+    """Every N batches trained: a sample of the first take's held-out audio as BVH + GIF into the MLflow
+    run, logged as `samples/step_NNNNNN/<take>.bvh` and `.gif`, always from the same seed, so successive
+    previews compare.
     """
 
-    def __init__(self, every_n_epochs: int = 10, seconds: float = 10.0, seed: int = 0):
-        self.every_n_epochs, self.seconds, self.seed = every_n_epochs, seconds, seed
+    def __init__(self, every_n_steps: int = 1000, seconds: float = 10.0, seed: int = 0):
+        self.due = Due(every_n_steps)
+        self.seconds, self.seed = seconds, seed
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module) -> None:
-        epoch = preview_epoch(trainer, self.every_n_epochs)
-        if epoch is None:
+        step = self.due(trainer)
+        if step is None:
             return
-        self.write(pl_module, trainer.datamodule, trainer.logger, f"samples/epoch_{epoch:04d}")
+        self.write(pl_module, trainer.datamodule, trainer.logger, step_folder("samples", step))
 
     def write(
         self, pl_module, datamodule, logger, artifact_dir: str, folder: Path | None = None

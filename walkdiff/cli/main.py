@@ -10,6 +10,7 @@ from walkdiff.callbacks.fit import lightning_cli
 from walkdiff.cli import autoregressive, bench, distill, evaluate, files, generate, model_files
 from walkdiff.common.arguments import Parser
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.threads import apply_threads, choose_threads
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
 # In the order `walkdiff --help` lists their commands; each sets `run`, the handler of what it parsed.
@@ -36,6 +37,17 @@ def main(argv: list[str] | None = None) -> int:
         words.remove("--debug")
         argv = words
     try:
+        threads_flag = _pop_threads(words)
+        if threads_flag is not None:
+            if argv is None:  # LightningCLI reads sys.argv itself
+                sys.argv[1:] = words
+            else:
+                argv = words
+        threads, why = choose_threads(threads_flag)
+        apply_threads(threads)
+        if words and words[0] == "fit":
+            print(f"walkdiff: torch computes with {threads} thread{'s' * (threads > 1)} ({why}; "
+                  "--threads N to change)", file=sys.stderr)  # fmt: skip
         if words and words[0] in LIGHTNING_VERBS:
             lightning_cli(argv)  # None: LightningCLI reads sys.argv itself
             return 0
@@ -108,6 +120,21 @@ def command_output(args: argparse.Namespace) -> tuple[Path, tuple[str, ...]] | N
     if out is None:  # inspect; data scan without --out
         return None
     return Path(out), REPORTS.get(args.command, ())
+
+
+def _pop_threads(words: list[str]) -> str | None:
+    """Removes `--threads N` / `--threads=N` (any command, like --debug) from `words`; returns N."""
+    for i, word in enumerate(words):
+        if word == "--threads":
+            if i + 1 == len(words):
+                raise WalkdiffError("--threads: expected a number of threads after it")
+            value = words[i + 1]
+            del words[i : i + 2]
+            return value
+        if word.startswith("--threads="):
+            del words[i]
+            return word.split("=", 1)[1]
+    return None
 
 
 def _walkdiff_cause(error: BaseException) -> WalkdiffError | None:

@@ -49,3 +49,12 @@ def step_hook(bar: tqdm, runs: int = 1) -> Callable[[int, int], None]:
         bar.update(1)
 
     return hook
+
+
+def duration(seconds: float) -> str:
+    """A duration as people say it: '45 s', '12 min', '2.5 h'."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"

@@ -28,9 +28,9 @@ default schedule) that is ~200 e. Multiplying the squared x0-space terms by abar
 (1 - abar_t) e^2, no larger than the eps loss itself, while keeping them at full weight for small t,
 where x0_hat is a meaningful motion. It is smooth (no threshold to tune) and needs no extra head.
 
-Step counting: with the adversarial term on, each batch takes two optimizer steps (D then G), and
-Lightning's `trainer.global_step` counts both; `max_steps` therefore counts 2 per batch. The configs
-bound training by epochs and time instead, and warm-up counts batches (`self.batches_done`).
+Step counting: each batch steps the discriminator and then the generator, but only the generator's step
+is counted (`_step_uncounted`), so `trainer.global_step`, `max_steps`, `val_check_interval`, the warm-ups
+and the LR schedule all count batches: the configs bound training by batches, whatever the data's size.
 """
 
 from __future__ import annotations
@@ -172,12 +172,13 @@ class StyledMotionDiffusion(MotionModule):
         checkpoint["state_dict"].setdefault("planted_height", torch.full((4,), float("nan")))
 
     @property
-    def optimizers_per_batch(self) -> int:
-        return 2 if self.discriminator is not None else 1
-
-    @property
     def batches_done(self) -> int:
-        return self.global_step // self.optimizers_per_batch
+        return self.global_step  # one counted optimizer step per batch (see `_step_uncounted`)
+
+    def _step_uncounted(self, optimizer) -> None:
+        """Steps `optimizer` (a LightningOptimizer) the way its own `step` does, through the strategy and
+        its precision plugin, but without Lightning's optimizer-step counter."""
+        self.trainer.strategy.optimizer_step(optimizer.optimizer, lambda: None, model=self)
 
     # ---------------------------------------------------------------- losses
 
@@ -332,7 +333,7 @@ class StyledMotionDiffusion(MotionModule):
             opt_d.zero_grad(set_to_none=True)
             self.manual_backward(d_losses["d"])
             self.clip_gradients(opt_d, gradient_clip_val=h.grad_clip, gradient_clip_algorithm="norm")
-            opt_d.step()
+            self._step_uncounted(opt_d)
             sched_d.step()
             logs |= {f"{DISCRIMINATOR_TERMS[k]}/train": v for k, v in d_losses.items()}
 
