@@ -21,7 +21,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.data import xia
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.datasets import open_source
-from walkdiff.data.folder import FolderSource, split_counts
+from walkdiff.data.folder import SPLITS, FolderSource, split_counts
 from walkdiff.data.scan import config_name, scan
 
 STYLES = ("angry", "neutral")
@@ -405,7 +405,9 @@ def test_a_folder_without_val_or_test_clips_says_so_and_how_to_fix_it(xia_dir, t
     folder.mkdir()
     shutil.copyfile(xia_dir / "angry_01_000.bvh", folder / "take.bvh")
     advice = "clips are split per (style, content) label pair, and a pair needs 2 clips to give one to test"
-    assert f"no val and no test clips, which training needs: {advice}" in scan(folder)
+    text = scan(folder)
+    assert f"no test clips, which training needs: {advice}" in text
+    assert "no val clips: the written configs do not validate" in text and f"To validate: {advice}" in text
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr("sys.argv", ["walkdiff"])
@@ -431,6 +433,8 @@ def test_a_folder_without_val_or_test_clips_says_so_and_how_to_fix_it(xia_dir, t
 
 
 def test_a_split_whose_clips_were_all_skipped_says_so(xia_dir, tmp_path):
+    import lightning as L
+
     from walkdiff.data.datamodule import MotionDataModule
 
     folder = tmp_path / "three"
@@ -443,12 +447,16 @@ def test_a_split_whose_clips_were_all_skipped_says_so(xia_dir, tmp_path):
     val.path.write_text("HIERARCHY\n")
     options = dict(dataset="folder", root=str(folder), contents="all", cache_dir=str(tmp_path / "cache"))
     dm = MotionDataModule(**options, on_error="skip", preprocess_workers=1)
+    dm.trainer = L.Trainer(limit_val_batches=1, logger=False, enable_checkpointing=False)  # validates
     with pytest.warns(UserWarning, match=val.name), pytest.raises(WalkdiffError) as error:
         dm.setup()
     assert str(error.value) == (
         f"{folder}: the val split has no readable clip: data.on_error skip left out all its 1 (see the "
         "warning above)"
     )
+    dm = MotionDataModule(**options, on_error="skip", preprocess_workers=1)  # no trainer: nothing validates
+    dm.setup()
+    assert len(dm.datasets["val"]) == 0 and len(dm.datasets["train"]) > 0 and len(dm.datasets["test"]) > 0
 
 
 def test_open_source_gives_the_folder_source(takes, tmp_path):
@@ -523,6 +531,7 @@ def test_scan_without_labels_and_with_a_pattern(xia_dir, tmp_path):
     assert "style x content" not in text and "Clip length at 24 fps" in text
     assert "Suggested: fps 24," in text and "(--out DIR)" in text.splitlines()[-1]
     out = tmp_path / "conf"
+    shutil.copyfile(xia_dir / "old_01_002.bvh", tmp_path / "old_01_002.bvh")  # a val clip: previews written
     scan(tmp_path, pattern=r"^(?P<style>[a-z]+)_\d+_(?P<content>\d)", out=out, name="Xia Bits!")
     config = OmegaConf.load(out / "xia_bits.yaml")
     assert config.data.init_args.pattern == r"^(?P<style>[a-z]+)_\d+_(?P<content>\d)"
@@ -552,3 +561,139 @@ def test_scan_refuses_a_file_of_another_skeleton(folder, zeggs_dir):
     message = str(error.value)
     assert error.value.path == str(folder / "zz" / "speech.bvh")
     assert "75 joints vs 31" in message and "missing LHipJoint" in message and "extra" in message
+
+
+# ---------------------------------------------------------------- data split
+
+
+def _listed(out: str) -> dict[str, dict[str, list[str]]]:
+    """`data split` output -> split -> clip file (without .bvh) -> its row's other columns."""
+    listed: dict[str, dict[str, list[str]]] = {}
+    current = None
+    for line in out.splitlines():
+        header = re.match(r"^(train|val|test): (\d+) clips?", line)
+        if header:
+            current = listed.setdefault(header[1], {})
+        elif current is not None and line.startswith("  ") and not line.startswith("  ("):
+            file, *rest = line.lstrip(" *").split()
+            current[re.sub(r"\.bvh$", "", file, flags=re.I)] = rest
+    return listed
+
+
+def test_data_split_lists_each_split_with_labels_and_writes_a_manifest_that_keeps_it(takes, tmp_path, capsys):
+    from walkdiff.cli.main import main
+
+    root, origin = takes
+    rows = manifest_rows(origin)
+    rows[0].append("split")
+    for row in rows[1:]:
+        row.append("test" if row[0].startswith("take_010") else "")
+    manifest = write_csv(tmp_path / "labels.csv", rows)
+    assert main(["data", "split", str(root), "--labels", str(manifest), "--val-fraction", "0.34"]) == 0
+    out = capsys.readouterr().out
+    source = FolderSource(root, labels=str(manifest), val_fraction=0.34)
+    splits = source.split_clips(source.list_clips(), all_contents(source))
+    listed = _listed(out)
+    assert {s: set(listed[s]) for s in listed} == split_names(splits)
+    labels = expected_labels(origin)
+    assert all(listed[s][name] == list(labels[name]) for s in listed for name in listed[s])
+    assert out.splitlines()[0] == f"Splits of {root.resolve()} (12 clips; labels from manifest {manifest})"
+    assert "Split by the manifest's split column for 1 clips (marked *); the rest per (style, content)" in out
+    assert "\n  * take_010.bvh" in out and "test_fraction 0.1, val_fraction 0.34, the rest trains." in out
+    counts = {s: len(splits[s]) for s in SPLITS}
+    train = rf"^train: {counts['train']} clips \(style: angry \d, neutral \d; content: run \d, walk \d\)$"
+    assert re.search(train, out, re.M)
+    assert (
+        out.splitlines()[-1] == f"Total: train {counts['train']}, val {counts['val']}, test {counts['test']}"
+    )
+
+    # --out: a manifest with every clip's split; trained on, it gives the same splits.
+    written = tmp_path / "splits.csv"
+    assert main(["data", "split", str(root), "--labels", str(manifest), "--val-fraction", "0.34", "--out",
+                 str(written)]) == 0  # fmt: skip
+    assert f"Wrote {written}" in capsys.readouterr().out
+    assert written.read_text().splitlines()[0] == "file,style,content,split"
+    frozen = FolderSource(root, labels=str(written))
+    assert split_names(frozen.split_clips(frozen.list_clips(), all_contents(frozen))) == split_names(splits)
+    assert labels_of(frozen) == labels
+    with pytest.raises(WalkdiffError, match="manifest exists: pass overwrite"):
+        from walkdiff.data.splits import split_report
+
+        split_report(root, out=written)
+
+
+def test_data_split_of_xia_and_of_a_folder_without_labels(xia_dir, tmp_path, monkeypatch, capsys):
+    from walkdiff.cli.main import main
+
+    monkeypatch.setenv("WALKDIFF_DATA", str(xia_dir.parent))
+    monkeypatch.chdir(tmp_path)  # no folder called xia here
+    assert main(["data", "split", "xia", "--contents", "walk"]) == 0
+    out = capsys.readouterr().out
+    clips = xia.list_clips(xia_dir)
+    splits = xia.split_clips(clips, ContentSelection.parse("walk", xia.GROUPS))
+    assert (
+        out.splitlines()[0]
+        == f"Splits of {xia_dir} (572 clips, 277 of them in data.contents walk; labels from the file names)"
+    )
+    assert {s: set(v) for s, v in _listed(out).items()} == split_names(splits)
+    assert main(["data", "split", "xia", "--labels", "x.csv"]) == 1
+    assert "only the folder dataset takes labels" in capsys.readouterr().err
+
+    for stem in ("angry_01_000", "angry_01_001"):
+        shutil.copyfile(xia_dir / f"{stem}.bvh", tmp_path / f"{stem}.bvh")
+    assert main(["data", "split", str(tmp_path), "--test-fraction", "0"]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "\ntrain: 2 clips\n    angry_01_000.bvh\n    angry_01_001.bvh\n"
+        "val: 0 clips\n  (none: `data scan` writes configs that do not validate; to validate:" in out
+    )
+    assert "test: 0 clips\n  (none: data.test_fraction is 0: set it above 0" in out
+
+
+# ---------------------------------------------------------------- without a validation split
+
+
+def test_a_folder_without_val_clips_gets_configs_that_do_not_validate(takes, tmp_path, monkeypatch, capsys):
+    import lightning as L
+
+    from walkdiff.callbacks.fit import lightning_cli
+    from walkdiff.data.datamodule import MotionDataModule
+
+    root, origin = takes
+    manifest = write_csv(tmp_path / "labels.csv", manifest_rows(origin))
+    out = tmp_path / "conf"
+    text = scan(root, labels=str(manifest), val_fraction=0, out=out, name="noval")
+    assert "Splits (clips, seconds): train 8 (" in text and ", val 0 (0.0 s), test 4 (" in text
+    assert "no val clips: the written configs do not validate (trainer.limit_val_batches 0)" in text
+    assert "To validate: data.val_fraction is 0: set it above 0" in text
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+    for file in ("evaluator_noval.yaml", "noval.yaml"):
+        written = (out / file).read_text()
+        config = OmegaConf.to_container(OmegaConf.load(out / file))
+        trainer = config["trainer"]
+        assert trainer["limit_val_batches"] == 0
+        assert "val_check_interval" not in trainer and "check_val_every_n_epoch" not in trainer
+        callbacks = [c["class_path"].rsplit(".", 1)[-1] for c in trainer["callbacks"]]
+        assert callbacks == ["RunCheckpoint"], file  # last.ckpt only: nothing that follows a validation
+        assert "monitor" not in written and "/val" not in written
+        with pytest.raises(SystemExit) as stop:
+            lightning_cli(["fit", "--config", str(out / file), "--print_config"])
+        assert stop.value.code == 0
+        assert "limit_val_batches: 0" in capsys.readouterr().out
+
+    # The data module takes an empty val split when nothing validates, and says how to fix it otherwise.
+    init = OmegaConf.to_container(OmegaConf.load(out / "noval.yaml").data.init_args)
+    module = MotionDataModule(**init)
+    assert not module.splits["val"] and module.splits["test"]
+    module._check_splits()  # outside a trainer (evaluate, score): nothing validates
+    module.trainer = L.Trainer(limit_val_batches=0, logger=False, enable_checkpointing=False)
+    module._check_splits()
+    module.trainer = L.Trainer(limit_val_batches=4, logger=False, enable_checkpointing=False)
+    with pytest.raises(WalkdiffError) as error:
+        module._check_splits()
+    message = str(error.value)
+    assert "no val clip: the dataset has 12 clips, split 8 train, 0 val, 4 test;" in message
+    assert message.endswith(
+        "or train without validation: trainer.limit_val_batches 0 (what `walkdiff data scan` writes for a "
+        "folder without val clips)"
+    )

@@ -1,4 +1,4 @@
-"""Commands on motion files as they are: `inspect`, `convert`, `view` and `data scan`."""
+"""Commands on motion files as they are: `inspect`, `convert`, `view`, `data scan` and `data split`."""
 
 from __future__ import annotations
 
@@ -35,9 +35,35 @@ def add_parsers(sub) -> None:
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
     p.set_defaults(run=run_view)
 
-    p = sub.add_parser("data", help="your own motion capture: `walkdiff data scan DIR`")
+    p = sub.add_parser("data", help="your own motion capture: `data scan DIR`, `data split DIR`")
     data = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     add_scan(data)
+    add_split(data)
+
+
+def label_options(d: argparse.ArgumentParser) -> None:
+    """How a folder's clips are labelled and split: the options `data scan` and `data split` share."""
+    d.add_argument("--labels", default=None, help="CSV/JSON manifest: file, style, content, split columns")
+    d.add_argument("--pattern", default=None, help="regular expression with named groups style / content")
+    d.add_argument("--default-style", default=None, help="style of clips without one")
+    d.add_argument("--default-content", default=None, help="content of clips without one")
+    d.add_argument(
+        "--val-fraction",
+        type=number(0, 1, below=True),
+        default=None,
+        help="per label, held out for validation (0: none; data scan then writes configs without validation)",
+    )
+    d.add_argument(
+        "--test-fraction", type=number(0, 1, below=True), default=None, help="per label, held out for testing"
+    )
+
+
+def mirror_pair(text: str) -> tuple[str, str | None]:
+    """argparse type of --mirror-labels: LABEL=PARTNER (LABEL=LABEL: not lateral; LABEL=: no partner)."""
+    label, equals, partner = text.partition("=")
+    if not equals or not label.strip():
+        raise argparse.ArgumentTypeError(f"expected LABEL=PARTNER (or LABEL= for none), got {text!r}")
+    return label.strip(), partner.strip() or None
 
 
 def add_scan(data) -> None:
@@ -47,18 +73,15 @@ def add_scan(data) -> None:
         "with --out, the evaluator and generator configs that `walkdiff fit --config` runs",
     )
     d.add_argument("folder", help="folder of BVH files (searched recursively)")
-    d.add_argument("--labels", default=None, help="CSV/JSON manifest: file, style, content, split columns")
-    d.add_argument("--pattern", default=None, help="regular expression with named groups style / content")
-    d.add_argument("--default-style", default=None, help="style of clips without one")
-    d.add_argument("--default-content", default=None, help="content of clips without one")
+    label_options(d)
     d.add_argument(
-        "--val-fraction",
-        type=number(0, 1, below=True),
+        "--mirror-labels",
+        type=mirror_pair,
+        action="append",
         default=None,
-        help="per label, held out for validation",
-    )
-    d.add_argument(
-        "--test-fraction", type=number(0, 1, below=True), default=None, help="per label, held out for testing"
+        metavar="LABEL=PARTNER",
+        help="the label of a LABEL clip's mirrored copy, over what the names say (walk_lturn=walk_rturn; "
+        "LABEL=LABEL: not lateral; LABEL=: no partner, copies left out); repeat for more",
     )
     d.add_argument("--profile", default=None, help=PROFILE_HELP)
     d.add_argument(
@@ -71,6 +94,20 @@ def add_scan(data) -> None:
     d.add_argument("--out", default=None, help="folder to write the two configs into")
     d.add_argument("--overwrite", action="store_true", help="replace existing configs")
     d.set_defaults(run=run_scan)
+
+
+def add_split(data) -> None:
+    d = data.add_parser(
+        "split",
+        help="the train/val/test clips of a folder of BVH files (or of xia, humanact12) with their labels; "
+        "with --out, a labels manifest that fixes every clip's split",
+    )
+    d.add_argument("folder", help="folder of BVH files (searched recursively), or a dataset: xia, humanact12")
+    label_options(d)
+    d.add_argument("--contents", default="all", help="content labels to list: 'all' (default) or a list")
+    d.add_argument("--out", default=None, help="CSV file to write: file, style, content, split of every clip")
+    d.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    d.set_defaults(run=run_split)
 
 
 def run_inspect(args: argparse.Namespace) -> None:
@@ -107,4 +144,12 @@ def run_scan(args: argparse.Namespace) -> None:
     options = keyword_options(args)
     if options["profile"]:
         options["profile"] = read_config(options["profile"], "--profile")
+    if options["mirror_labels"] is not None:
+        options["mirror_labels"] = dict(options["mirror_labels"])
     print(scan(**options))
+
+
+def run_split(args: argparse.Namespace) -> None:
+    from walkdiff.data.splits import split_report
+
+    print(split_report(**keyword_options(args)))

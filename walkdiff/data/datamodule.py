@@ -5,6 +5,7 @@ from __future__ import annotations
 import inspect
 import logging
 import os
+import warnings
 from pathlib import Path
 
 import lightning as L
@@ -13,6 +14,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.data import laterality
 from walkdiff.data.clips import ClipInfo, ContentSelection
 from walkdiff.data.datasets import open_source
 from walkdiff.data.folder import SPLITS
@@ -126,7 +128,11 @@ class MotionDataModule(WindowLoaders):
             30 fps), so 24 keeps 99% of the walking; longer motion is generated window by window.
         stride: frames between window starts.
         mirror: add left/right mirrored copies of the training clips (refused for a skeleton without
-            left/right pairs).
+            left/right pairs). A copy of a clip whose style or content names a side (`walk-turn-left`,
+            `punch_l`, `lturn`, ...) takes the label with the side swapped; one whose swapped label no
+            clip has is left out, with a warning (`walkdiff.data.laterality`).
+        mirror_labels: {label: mirrored label} overriding what the names say: a partner of the same
+            kind, the label itself (not lateral) or null (no partner: the copies are left out).
         cache_dir: where preprocessed features are kept.
         on_error: 'fail' on an unreadable clip, or 'skip' it with a warning that lists it.
         preprocess_workers: processes for the first (cold) preprocessing.
@@ -148,6 +154,7 @@ class MotionDataModule(WindowLoaders):
         window: int = 24,
         stride: int = 4,
         mirror: bool = True,
+        mirror_labels: dict[str, str | None] | None = None,
         batch_size: int = 32,
         num_workers: int = 0,
         cache_dir: str = ".cache/walkdiff",
@@ -166,6 +173,13 @@ class MotionDataModule(WindowLoaders):
         self.clips = self.source.list_clips()
         self.selection = ContentSelection.parse(contents, self.source.groups)
         self.splits = self.source.split_clips(self.clips, self.selection)
+        # What mirrored copies are labelled: checked now, before any preprocessing.
+        styles, groups = self.source.styles, self.source.groups
+        self.mirror_map = (
+            laterality.mirror_labels(styles, groups, mirror_labels, selected=self.selection.names)
+            if mirror
+            else laterality.MirrorLabels.unchanged(len(styles), len(groups))
+        )
         self._profile: SkeletonProfile | None = None
         self.processed: ProcessedClips | None = None
         self.normalizer: Normalizer | None = None
@@ -220,7 +234,8 @@ class MotionDataModule(WindowLoaders):
         self._ensure_processed()
 
     def split_features(self, split: str, mirrored: bool = False) -> list[tuple[ClipInfo, str, np.ndarray]]:
-        """(clip, name, features) of every readable clip of a split; mirrored copies when asked."""
+        """(clip, name, features) of every readable clip of a split; mirrored copies when asked, with
+        their lateral labels swapped (`self.mirror_map`): a copy whose label has no partner is left out."""
         processed = self._ensure_processed()
         position = {name: i for i, name in enumerate(processed.names)}
         out = []
@@ -229,8 +244,9 @@ class MotionDataModule(WindowLoaders):
                 continue
             i = position[clip.name]
             out.append((clip, clip.name, processed.features[i]))
-            if mirrored and processed.mirrored is not None:
-                out.append((clip, clip.name + "#mirror", processed.mirrored[i]))
+            copy = self.mirror_map.mirrored(clip) if mirrored and processed.mirrored is not None else None
+            if copy is not None:
+                out.append((copy, clip.name + "#mirror", processed.mirrored[i]))
         return out
 
     def setup(self, stage: str | None = None) -> None:
@@ -238,10 +254,13 @@ class MotionDataModule(WindowLoaders):
             return
         self._check_splits()
         h = self.hparams
+        if h.mirror:
+            self._report_mirror_labels()
         parts = {
             split: self.split_features(split, mirrored=h.mirror and split == "train") for split in SPLITS
         }
-        skipped = [s for s in SPLITS if not parts[s]]
+        needed = self._needed_splits()
+        skipped = [s for s in needed if not parts[s]]
         if skipped:
             raise WalkdiffError(
                 f"the {skipped[0]} split has no readable clip: data.on_error skip left out all its "
@@ -257,25 +276,57 @@ class MotionDataModule(WindowLoaders):
                     f"{split}: {len(short)} of {len(clips)} clips are shorter than the {h.window}-frame "
                     f"window and give no windows: {', '.join(short[:10])}{' ...' if len(short) > 10 else ''}"
                 )
-            if len(self.datasets[split]) == 0:
+            if len(self.datasets[split]) == 0 and split in needed:
                 raise WalkdiffError(
                     f"the {split} split has no {h.window}-frame windows; use a shorter data.window"
                 )
 
+    def _report_mirror_labels(self) -> None:
+        """Log the lateral labels that mirrored copies swap; warn about those whose copies are left out."""
+        for line in self.mirror_map.describe():
+            log.info(f"mirrored copies: {line}")
+        warning = self.mirror_map.warning()
+        left_out = [c for c in self.splits["train"] if self.mirror_map.mirrored(c) is None]
+        if warning and left_out:
+            total = len(self.splits["train"])
+            warnings.warn(f"{warning} ({len(left_out)} of {total} training clips)", stacklevel=3)
+
+    def _validates(self) -> bool:
+        """Whether the trainer this module is attached to runs validation: `fit` with
+        trainer.limit_val_batches above 0, or `validate`. Outside a trainer (evaluate, score), no."""
+        trainer = self.trainer
+        if trainer is None:
+            return False
+        state = getattr(trainer, "state", None)
+        if getattr(state, "fn", None) in ("test", "predict"):
+            return False
+        return trainer.limit_val_batches != 0
+
+    def _needed_splits(self) -> tuple[str, ...]:
+        """The splits that must have clips: all three, val only when validation runs."""
+        return SPLITS if self._validates() else tuple(s for s in SPLITS if s != "val")
+
     def _check_splits(self) -> None:
         """A WalkdiffError naming the splits without a clip, how the dataset split and how to fix it
-        (a one-clip folder has only training clips: no window length gives it a validation window)."""
-        empty = [s for s in SPLITS if not self.splits[s]]
+        (a one-clip folder has only training clips: no window length gives it a validation window).
+        An empty val split is fine when nothing validates (trainer.limit_val_batches 0)."""
+        empty = [s for s in self._needed_splits() if not self.splits[s]]
         if empty:
             chosen = sum(len(clips) for clips in self.splits.values())
             selected = (
                 "" if chosen == len(self.clips) else f" ({chosen} of the contents data.contents selects)"
             )
             counts = ", ".join(f"{len(self.splits[s])} {s}" for s in SPLITS)
+            without = (
+                "; or train without validation: trainer.limit_val_batches 0 (what `walkdiff data scan` "
+                "writes for a folder without val clips)"
+                if "val" in empty
+                else ""
+            )
             raise WalkdiffError(
                 f"no {' and no '.join(empty)} clip: the dataset has {len(self.clips)} clip"
                 f"{'s' * (len(self.clips) != 1)}{selected}, "
-                f"split {counts}; {self.source.empty_split_advice(empty)}",
+                f"split {counts}; {self.source.empty_split_advice(empty)}{without}",
                 path=self.folder,
             )
 

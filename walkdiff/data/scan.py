@@ -20,6 +20,7 @@ import numpy as np
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import write_text
 from walkdiff.common.progress import progress
+from walkdiff.data import laterality
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.folder import NO_CONTENT, NO_STYLE, SPLITS, FolderSource
 from walkdiff.motion.profile import SkeletonProfile
@@ -28,6 +29,14 @@ TRAINING_FPS = 30  # the suggested rate for data at 30 fps or more
 WINDOW_SECONDS = 0.8  # the suggested window, at most the 10th percentile clip length
 MIN_WINDOW = 8
 STRIDES_PER_WINDOW = 6
+# Training budgets in batches, whatever the folder's size: the recipe of conf/xia_cpu.yaml reaches the
+# quality bar in about half its 1,800 batches on Xia walking, and a larger folder needs no more batches
+# to reach it (docs/training.md, "Time to the quality bar"). Windows beyond MAX_WINDOWS would be seen
+# less than about 4 times in the budget: the stride grows instead (up to half a window).
+GENERATOR_STEPS, GENERATOR_VALIDATE = 1800, 225
+EVALUATOR_STEPS, EVALUATOR_VALIDATE = 1800, 200
+MAX_WINDOWS = 30_000
+VAL_BATCHES = 32  # validation batches at most: a larger folder validates no longer
 PERCENTILES = (5, 25, 50, 75, 95)
 PROGRESS_ABOVE = 20  # files: a progress bar on stderr beyond this
 _TABLE_LIMIT = 24  # rows / columns of the style x content table
@@ -48,13 +57,15 @@ def scan(
     profile: dict | None = None,
     val_fraction: float | None = None,
     test_fraction: float | None = None,
+    mirror_labels: dict | None = None,
 ) -> str:
     """The report on `folder` (text to print); with `out`, also writes the two training configs.
 
     `labels`, `pattern`, `default_style`, `default_content`, `profile`, `val_fraction` and
-    `test_fraction` are the folder dataset's options (`walkdiff.data.folder`); `fps` replaces the
-    suggested training frame rate; `name` (default: the folder's name) names the configs, checkpoints
-    and experiments; existing configs are kept unless `overwrite`.
+    `test_fraction` are the folder dataset's options (`walkdiff.data.folder`), `mirror_labels` the data
+    module's ({label: partner}, `walkdiff.data.laterality`); `fps` replaces the suggested training frame
+    rate; `name` (default: the folder's name) names the configs, checkpoints and experiments; existing
+    configs are kept unless `overwrite`. A folder without val clips gets configs that do not validate.
     """
     folder = Path(folder).expanduser().resolve()
     if not folder.is_dir():
@@ -66,6 +77,7 @@ def scan(
     options = {k: v for k, v in options.items() if v is not None}
     source = FolderSource(folder, profile=dict(profile or {}), **options)
     clips = source.list_clips()
+    splits = source.split_clips(clips, ContentSelection(tuple(source.groups)))
     name = config_name(name if name is not None else folder.name)
     out = None if out is None else Path(out).expanduser()
     paths = () if out is None else (out / f"evaluator_{name}.yaml", out / f"{name}.yaml")
@@ -77,7 +89,9 @@ def scan(
 
     found = _read_clips(source, clips)
     suggested = _suggest(found, fps)
-    lines = _report(folder, source, clips, found, suggested)
+    mirrors = bool(found.profile.mirror_pairs)  # mirror true is written: the labels of mirrored copies
+    swaps = laterality.mirror_labels(source.styles, source.groups, mirror_labels) if mirrors else None
+    lines = _report(folder, source, clips, splits, found, suggested, swaps)
     if out is None:
         lines.append("To write the two training configs, scan again with an output folder (--out DIR).")
         return "\n".join(lines)
@@ -93,6 +107,7 @@ def scan(
         "window": suggested.window,
         "stride": suggested.stride,
         "mirror": bool(found.profile.mirror_pairs),
+        **({"mirror_labels": dict(mirror_labels)} if mirror_labels and found.profile.mirror_pairs else {}),
         "batch_size": 64,
         "num_workers": 0,
     }
@@ -100,9 +115,10 @@ def scan(
         f"# {len(clips)} clips, {found.durations.sum() / 60:.1f} min, {len(source.styles)} style(s), "
         f"{len(source.groups)} content group(s); root {found.profile.root}."
     )
+    validate = bool(splits["val"])
     texts = (
-        _evaluator_config(name, folder, summary, data),
-        _generator_config(name, folder, summary, data, source.groups[0]),
+        _evaluator_config(name, folder, summary, data, validate),
+        _generator_config(name, folder, summary, data, source.groups[0], validate),
     )
     for path, text in zip(paths, texts):
         write_text(path, text)
@@ -164,16 +180,27 @@ def _suggest(found: _Found, fps: float | None) -> _Suggested:
     window = max(window, MIN_WINDOW)
     window -= window % 2
     stride = max(1, window // STRIDES_PER_WINDOW)
+    # Mirrored copies double the windows; the stride grows with the data so the budget still sees each.
+    frames = 2 * int(training_frames[training_frames >= window].sum())
+    stride = min(max(stride, math.ceil(frames / MAX_WINDOWS)), max(1, window // 2))
     return _Suggested(training_fps, training_frames, window, stride)
 
 
 # ---------------------------------------------------------------- report helpers
 
 
-def _report(folder: Path, source: FolderSource, clips, found: _Found, suggested: _Suggested) -> list[str]:
-    """The report's lines: the skeleton profile, notes, frame rates, lengths, labels, splits, suggestion."""
+def _report(
+    folder: Path,
+    source: FolderSource,
+    clips,
+    splits: dict,
+    found: _Found,
+    suggested: _Suggested,
+    swaps: laterality.MirrorLabels | None,
+) -> list[str]:
+    """The report's lines: the skeleton profile, notes, frame rates, lengths, labels, mirrored labels,
+    splits, suggestion."""
     profile, durations = found.profile, found.durations
-    splits = source.split_clips(clips, ContentSelection(tuple(source.groups)))
     seconds = {c.name: float(d) for c, d in zip(clips, durations)}
     joints = profile.skeleton.num_joints
     lines = [f"Folder: {folder} ({len(clips)} BVH files, one skeleton of {joints} joints)"]
@@ -190,9 +217,23 @@ def _report(folder: Path, source: FolderSource, clips, found: _Found, suggested:
             f"{short} clips are shorter than the window ({suggested.window} frames) and are not trained on"
         )
     empty = [split for split in SPLITS if not splits[split]]
-    if empty:
+    needed = [split for split in empty if split != "val"]
+    if needed:
         notes.append(
-            f"no {' and no '.join(empty)} clips, which training needs: {source.empty_split_advice(empty)}"
+            f"no {' and no '.join(needed)} clips, which training needs: {source.empty_split_advice(needed)}"
+        )
+    if "val" in empty:
+        notes.append(
+            "no val clips: the written configs do not validate (trainer.limit_val_batches 0): no checkpoint "
+            "chosen on validation, and no metrics or previews while the generator trains (they follow "
+            "validations; measure last.ckpt with `walkdiff evaluate`). To validate: "
+            + source.empty_split_advice(["val"])
+        )
+    unpaired = [f"{s.kind} {s.label}" for s in swaps.unpaired] if swaps is not None else []
+    if unpaired:
+        notes.append(
+            f"{len(unpaired)} label(s) name a side but have no partner ({', '.join(unpaired)}): their "
+            "mirrored copies are left out of training (see 'Mirrored copies' below)"
         )
     lines.append("Notes:" if notes else "Notes: none")
     lines += [f"  - {note}" for note in notes]
@@ -207,6 +248,8 @@ def _report(folder: Path, source: FolderSource, clips, found: _Found, suggested:
         f"{found.frames.max()} frames ({durations.min():.2f} to {durations.max():.2f} s)"
     )
     lines += _label_lines(source, clips)
+    if swaps is not None:
+        lines += _mirror_lines(swaps)
 
     fps, window, stride = suggested.fps, suggested.window, suggested.stride
     lines.append(f"Clip length at {fps:g} fps (p{' / p'.join(str(p) for p in PERCENTILES)}):")
@@ -219,6 +262,11 @@ def _report(folder: Path, source: FolderSource, clips, found: _Found, suggested:
     lines.append(
         f"Suggested: fps {fps:g}, window {window} ({window / fps:.2f} s), stride {stride}, "
         f"mirror {'true' if profile.mirror_pairs else 'false'}"
+    )
+    lines.append(
+        f"Budget: the evaluator {EVALUATOR_STEPS:,} batches, the generator {GENERATOR_STEPS:,} batches of 64 "
+        "windows, whatever the folder's size (the stride grows past "
+        f"{MAX_WINDOWS:,} windows instead)"
     )
     return lines
 
@@ -267,6 +315,18 @@ def _label_lines(source: FolderSource, clips) -> list[str]:
     return lines
 
 
+def _mirror_lines(swaps: laterality.MirrorLabels) -> list[str]:
+    """What the mirrored training copies (mirror true) are labelled: the lateral labels."""
+    if not swaps.swaps:
+        return [
+            "Mirrored copies keep their labels: no style or content label names a side (left/right, l/r, "
+            "lturn/rturn, cw/ccw, ...)"
+        ]
+    lines = ["Mirrored copies swap the labels that name a side (a mirrored left turn turns right):"]
+    lines += [f"  {line}" for line in swaps.describe()]
+    return lines
+
+
 # ---------------------------------------------------------------- configs
 
 
@@ -292,32 +352,34 @@ def _data_section(data: dict) -> str:
     return f"data:\n  class_path: walkdiff.data.datamodule.MotionDataModule\n  init_args:\n{body}"
 
 
-def _trainer(directory: str, max_epochs: int, max_time: str, validate_every: int | None = None) -> str:
+def _trainer(directory: str, max_steps: int, validate_every: int, max_time: str) -> str:
     """The trainer section both configs share (CPU, 32-bit), up to the logger."""
-    every = f"  check_val_every_n_epoch: {validate_every}\n" if validate_every else ""
     return f"""\
 seed_everything: 0
 trainer:
   accelerator: cpu
   devices: 1
   precision: 32-true
-  max_epochs: {max_epochs}            # the bound: the same model on a fast or a busy machine
+  max_steps: {max_steps}              # the bound, in batches: the same model on a fast or a busy machine
   max_time: "{max_time}"        # only a safety net (says so and tags the run when it fires)
-{every}  log_every_n_steps: 20
+  val_check_interval: {validate_every}        # batches between validations, across epochs
+  check_val_every_n_epoch: null
+  limit_val_batches: {VAL_BATCHES}
+  log_every_n_steps: 20
   num_sanity_val_steps: 0
   default_root_dir: {_yaml(directory)}
 """
 
 
-def _last_checkpoint(directory: str) -> str:
-    """The checkpoint without a monitor: last.ckpt (a link into the run's folder), every epoch."""
+def _last_checkpoint(directory: str, every: int) -> str:
+    """The checkpoint without a monitor: last.ckpt (a link into the run's folder), every N batches."""
     return f"""\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
         filename: last
         save_top_k: 1
-        save_on_train_epoch_end: true  # also when a run ends before its first validation
+        every_n_train_steps: {every}       # also when a run ends before its first validation
 """
 
 
@@ -334,19 +396,22 @@ def _logger(name: str, run: str) -> str:
 """
 
 
-def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
+def _without_validation(trainer: str) -> str:
+    """The trainer section of a folder without val clips: no validation loop, hence nothing that
+    follows one (`MotionDataModule` accepts an empty val split when trainer.limit_val_batches is 0)."""
+    validation = re.compile(r"  (val_check_interval|check_val_every_n_epoch|limit_val_batches):")
+    lines = trainer.splitlines(keepends=True)
+    first = [i for i, line in enumerate(lines) if validation.match(line)]
+    at = first[0] if first else lines.index("trainer:\n") + 1
+    kept = [line for line in lines if not validation.match(line)]
+    kept.insert(at, "  limit_val_batches: 0          # the folder has no val clips: no validation\n")
+    return "".join(kept)
+
+
+def _evaluator_config(name: str, folder: Path, summary: str, data: dict, validate: bool = True) -> str:
     directory = f"checkpoints/evaluator_{name}"
-    return (
-        f"""\
-# The motion evaluator of the metrics (style + content classifier) on {_comment(folder)}, mirrored copies
-# included when the skeleton has left/right pairs. Written by `walkdiff data scan`; sized for CPU.
-{summary}
-# Train it first: walkdiff fit --config <this file>
-"""
-        + _trainer(directory, 40, "00:01:00:00")
-        + _logger(name, f"evaluator_{name}")
-        + f"""\
-  callbacks:
+    trainer = _trainer(directory, EVALUATOR_STEPS, EVALUATOR_VALIDATE, "00:01:00:00")
+    best = f"""\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
@@ -354,9 +419,20 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict) -> str:
         monitor: style_acc/val
         mode: max
         save_top_k: 1
-    # The latest epoch as last.ckpt: the generator's metrics use it.
 """
-        + _last_checkpoint(directory)
+    return (
+        f"""\
+# The motion evaluator of the metrics (style + content classifier) on {_comment(folder)}, mirrored copies
+# included when the skeleton has left/right pairs. Written by `walkdiff data scan`; sized for CPU.
+{summary}
+# Train it first: walkdiff fit --config <this file>
+"""
+        + (trainer if validate else _without_validation(trainer))
+        + _logger(name, f"evaluator_{name}")
+        + "  callbacks:\n"
+        + (best if validate else "    # No val clips: no best checkpoint by validation accuracy.\n")
+        + "    # The latest as last.ckpt: the generator's metrics use it.\n"
+        + _last_checkpoint(directory, EVALUATOR_VALIDATE)
         + """\
 model:
   class_path: walkdiff.models.evaluator.MotionEvaluator
@@ -375,42 +451,59 @@ model:
     )
 
 
-def _generator_config(name: str, folder: Path, summary: str, data: dict, content: str) -> str:
+def _generator_config(
+    name: str, folder: Path, summary: str, data: dict, content: str, validate: bool = True
+) -> str:
     directory = f"checkpoints/{name}"
-    return (
-        f"""\
-# Styled motion GAN-DDPM on {_comment(folder)}. Written by `walkdiff data scan`; sized for CPU
-# (modelled on conf/xia_cpu.yaml). Every key can be overridden on the command line.
-{summary}
-# Train the evaluator first (walkdiff fit --config evaluator_{name}.yaml, beside this file): the
-# metrics callback reads its last checkpoint.
-"""
-        + _trainer(directory, 40, "00:04:00:00", validate_every=5)
-        + _logger(name, name)
-        + f"""\
-  callbacks:
+    trainer = _trainer(directory, GENERATOR_STEPS, GENERATOR_VALIDATE, "00:04:00:00")
+    measured = f"""\
     # FMD, style accuracy, diversity and foot skating of generated samples; placed before the
     # checkpoints that monitor its numbers.
     - class_path: walkdiff.callbacks.metrics.MotionMetrics
       init_args:
         evaluator_ckpt: {_yaml(f"checkpoints/evaluator_{name}/last.ckpt")}
-        every_n_epochs: 5
+        every_n_steps: {GENERATOR_VALIDATE}
         num_samples: 128
         sampler: ddpm
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
-        filename: "best-{{epoch:04d}}"
+        filename: "best-{{step:06d}}"
         monitor: metrics/fmd
         mode: min
         save_top_k: 1
 """
-        + _last_checkpoint(directory)
-        + f"""\
+    previews = f"""\
     - class_path: walkdiff.callbacks.samples.SampleClips
       init_args:
-        every_n_epochs: 10
+        every_n_steps: {2 * GENERATOR_VALIDATE}
         content: {_yaml(content)}
+"""
+    if validate:
+        first = f"""\
+# Train the evaluator first (walkdiff fit --config evaluator_{name}.yaml, beside this file): the
+# metrics callback reads its last checkpoint.
+"""
+    else:
+        first = f"""\
+# The folder has no val clips, so nothing validates: the metrics and previews (which follow validations)
+# and the best checkpoint they choose are left out; last.ckpt is the model. Score it after training with
+# walkdiff evaluate --evaluator checkpoints/evaluator_{name}/last.ckpt.
+"""
+    return (
+        f"""\
+# Styled motion GAN-DDPM on {_comment(folder)}. Written by `walkdiff data scan`; sized for CPU
+# (modelled on conf/xia_cpu.yaml). Every key can be overridden on the command line.
+{summary}
+"""
+        + first
+        + (trainer if validate else _without_validation(trainer))
+        + _logger(name, name)
+        + "  callbacks:\n"
+        + (measured if validate else "")
+        + _last_checkpoint(directory, GENERATOR_VALIDATE)
+        + (previews if validate else "")
+        + """\
 model:
   class_path: walkdiff.models.styled_ddpm.StyledMotionDiffusion
   init_args:

@@ -1,6 +1,11 @@
 """The Xia et al. 2015 style database: labels from file names and the published test split.
 
 File names are `STYLE_CC_NNN.bvh` (see ../shared/data/README.md): 8 styles, 28 content ids in 6 groups.
+
+A clip's content label is its group (walk, run, ...), not its content id: no label names a side, so
+mirrored training copies keep their labels (`walkdiff.data.laterality`). The ids' names would not do as
+turn labels anyway: measured by the heading, the clips of one id (05 walk_lturn_l1: 11 turn left, 14
+right) turn both ways.
 """
 
 from __future__ import annotations
