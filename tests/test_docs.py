@@ -255,7 +255,10 @@ def written_config(config: str, page: str, folder: Path) -> Path | None:
         data = synthetic.xia_like_folder(folder, walk_clips=3, frames=120)
         target = folder / "conf"
         labels = ["--pattern", "^(?P<style>[a-z]+)_", "--default-content", "walk"]
-        assert main(["data", "scan", str(data), "--out", str(target), "--name", name, *labels]) == 0
+        assert (
+            main(["data", "scan", str(data), "--out", str(target), "--name", name, *labels, "--no-timing"])
+            == 0
+        )
         return target / Path(config).name
     return None
 

@@ -204,7 +204,10 @@ def test_scan_shows_which_labels_mirroring_swaps(turning, tmp_path, capsys):
 
     # A mapping given on the command line is shown, and written into the configs.
     out = tmp_path / "conf"
-    assert main(["data", "scan", str(folder), "--out", str(out), "--mirror-labels", "walk=walk"]) == 0
+    assert (
+        main(["data", "scan", str(folder), "--out", str(out), "--mirror-labels", "walk=walk", "--no-timing"])
+        == 0
+    )
     assert "\n  content walk: kept (data.mirror_labels: not lateral)\n" in capsys.readouterr().out
     data = OmegaConf.to_container(OmegaConf.load(out / "turns.yaml")).get("data")["init_args"]
     assert data["mirror"] is True and data["mirror_labels"] == {"walk": "walk"}

@@ -122,27 +122,31 @@ def test_scan_then_fit_sample_and_transfer_on_disguised_xia(disguised_folder, tm
     assert main([*scan, "--out", "conf", "--name", "studio"]) == 0
     report = capsys.readouterr().out
     assert "root:      pelvis (static above it, folded: Root)" in report and "up +z" in report
+    # The plan in batches, whatever the folder's size, and what it costs here (timed on a few batches).
+    assert "Budget: the evaluator 1,800 batches, the generator 1,800 batches" in report
+    assert re.search(r"conf/studio.yaml: 1,800 batches x \d+\.\d\d s = ", report), report
     assert "units:     m" in report and "angry 6" in report
     generator = OmegaConf.load("conf/studio.yaml")
     assert generator.data.init_args.dataset == "folder" and generator.data.init_args.mirror is True
 
     quick = ["--trainer.enable_progress_bar", "false", "--trainer.log_every_n_steps", "1"]  # fmt: skip
-    assert main(["fit", "--config", "conf/evaluator_studio.yaml", "--trainer.max_epochs", "1", *quick]) == 0
+    assert main(["fit", "--config", "conf/evaluator_studio.yaml", "--trainer.max_steps", "3", *quick]) == 0
     assert Path("checkpoints/evaluator_studio/last.ckpt").is_file()
-    # The config as written, with a tiny network and a few batches: up to its first validation and metrics.
+    # The config as written, with a tiny network and a few batches, validated twice.
     tiny = ["--model.d_model", "32", "--model.layers", "1", "--model.heads", "2",
-            "--trainer.limit_train_batches", "2", "--trainer.max_epochs", "5"]  # fmt: skip
+            "--trainer.limit_train_batches", "2", "--trainer.max_steps", "10",
+            "--trainer.val_check_interval", "5"]  # fmt: skip
     assert main(["fit", "--config", "conf/studio.yaml", *quick, *tiny]) == 0
     ckpt = "checkpoints/studio/last.ckpt"
     assert Path(ckpt).is_file()
     capsys.readouterr()
     # Stopped by max_time before its first validation: it says so, and last.ckpt is still written.
     shutil.rmtree("checkpoints/studio")
-    # (1000 planned epochs: no machine trains them in the 1 s, so max_time always fires.)
-    short = [*quick, *tiny[:6], "--trainer.max_epochs", "1000", "--trainer.max_time", "00:00:00:01"]
+    # (100,000 planned batches: no machine trains them in the 1 s, so max_time always fires.)
+    short = [*quick, *tiny[:6], "--trainer.max_steps", "100000", "--trainer.max_time", "00:00:00:01"]
     assert main(["fit", "--config", "conf/studio.yaml", *short]) == 0
     err = capsys.readouterr().err
-    assert "max_time stopped training after epoch" in err and "of 1000" in err and Path(ckpt).is_file()
+    assert "max_time stopped training after step" in err and "of 100000" in err and Path(ckpt).is_file()
 
     sample = ["sample", "--ckpt", ckpt, "--style", "old", "--num", "1", "--frames", "40", "--sampler", "ddim"]
     assert main([*sample, "--steps", "3", "--out", "samples", "--no-gif"]) == 0

@@ -420,3 +420,36 @@ def test_speed(xia_dir):
         retargeter(clip)
         best = min(best, time.perf_counter() - start)
     assert clip.num_frames / best > 3000
+
+
+def test_the_retarget_command_writes_each_built_in_rig_and_a_users_rig(xia_dir, zeggs_dir, tmp_path, capsys):
+    """`walkdiff retarget SRC --to TARGET --out OUT`: the target's own skeleton, the source's frames, the
+    feet on the target's floor; a BVH rig and .glb; bad targets and outputs named."""
+    from walkdiff.cli.main import main
+    from walkdiff.motion.kinematics import motion_world_positions
+    from walkdiff.motion.rigs import SPECS, rig
+
+    source = xia_dir / "proud_01_000.bvh"
+    frames = read_bvh(source).num_frames
+    for name in ("mixamo", "unreal", "smpl"):
+        out = tmp_path / f"{name}.bvh"
+        assert main(["retarget", str(source), "--to", name, "--out", str(out)]) == 0
+        written, built = read_bvh(out), rig(name)
+        assert written.skeleton.names == built.skeleton.names and written.num_frames == frames
+        up = "xyz".index(SPECS[name].up[1])
+        heights = motion_world_positions(written)[..., up]
+        stature = motion_world_positions(built)[0, :, up].max()
+        assert abs(np.percentile(heights.min(axis=1), 50)) < 0.05 * stature  # standing on its floor
+    assert "legs" in capsys.readouterr().out
+    glb = tmp_path / "zeggs.glb"
+    zeggs = zeggs_dir / "067_Speech_2_x_1_0.bvh"
+    assert main(["retarget", str(source), "--to", str(zeggs), "--out", str(glb)]) == 0
+    assert glb.read_bytes()[:4] == b"glTF"
+    assert main(["retarget", str(source), "--to", "maya", "--out", str(tmp_path / "x.bvh")]) == 1
+    assert (
+        "expected a BVH file of your rig or a built-in rig (mixamo, unreal, smpl)" in capsys.readouterr().err
+    )
+    assert main(["retarget", str(source), "--to", "smpl", "--out", str(tmp_path / "x.fbx")]) == 1
+    assert "expected an output ending in .bvh or .glb" in capsys.readouterr().err
+    assert main(["retarget", str(source), "--to", "smpl", "--out", str(tmp_path / "smpl.bvh")]) == 1
+    assert "pass --overwrite" in capsys.readouterr().err

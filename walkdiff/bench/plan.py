@@ -9,7 +9,9 @@ the networks, losses and optimizers what a real one does.
 from __future__ import annotations
 
 import importlib
+import logging
 import time
+import warnings
 from pathlib import Path
 
 from walkdiff.common.progress import duration
@@ -78,12 +80,21 @@ def seconds_per_batch(config: str | Path, batches: int = 3, warmup: int = 1) -> 
             if batch_idx >= warmup:
                 times.append(time.perf_counter() - self.started)
 
-    trainer = L.Trainer(
-        accelerator="cpu", devices=1, precision=cfg.get("trainer", {}).get("precision", "32-true"),
-        max_steps=warmup + batches, limit_val_batches=0, logger=False, enable_checkpointing=False,
-        enable_progress_bar=False, enable_model_summary=False, callbacks=[Clock()],
-    )  # fmt: skip
-    trainer.fit(model, train_dataloaders=loader)
+    # A timing probe: Lightning's remarks about its loader and the stop it was told to make are noise here.
+    quiet = logging.getLogger("lightning.pytorch")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            trainer = L.Trainer(
+                accelerator="cpu", devices=1, precision=cfg.get("trainer", {}).get("precision", "32-true"),
+                max_steps=warmup + batches, limit_val_batches=0, logger=False, enable_checkpointing=False,
+                enable_progress_bar=False, enable_model_summary=False, callbacks=[Clock()],
+            )  # fmt: skip
+            trainer.fit(model, train_dataloaders=loader)
+    finally:
+        quiet.setLevel(level)
     return sorted(times)[len(times) // 2]
 
 

@@ -33,11 +33,14 @@ def lightning_cli(args: list[str] | None, callbacks: list | None = None):
 
         def before_fit(self) -> None:
             from walkdiff.callbacks.clock import ProgressLog
+            from walkdiff.common.threads import CHOSEN
 
             open_run(self.trainer)
             self.trainer.callbacks.extend(callbacks or [])
             if not sys.stderr.isatty():  # a terminal has Lightning's progress bar; a log file gets lines
                 self.trainer.callbacks.append(ProgressLog())
+            for line in CHOSEN:
+                print(f"walkdiff: {line}", file=sys.stderr)
 
         def after_fit(self) -> None:
             report_fit(self.trainer)

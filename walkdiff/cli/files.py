@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from walkdiff.cli.options import PROFILE_HELP, keyword_options
 from walkdiff.common.arguments import count, number
@@ -27,6 +28,29 @@ def add_parsers(sub) -> None:
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(run=run_convert)
+
+    p = sub.add_parser(
+        "retarget", help="play a BVH clip on another humanoid rig: your rig's BVH or mixamo, unreal, smpl"
+    )
+    p.add_argument("input", help="the clip to retarget (BVH)")
+    p.add_argument(
+        "--to",
+        required=True,
+        help="the target rig: a BVH of it (its first frame standing) or mixamo, unreal, smpl",
+    )
+    p.add_argument("--out", required=True, help="the output, .bvh (the target's skeleton) or .glb")
+    p.add_argument(
+        "--feet", choices=("follow", "pin", "off"), default="follow",
+        help="planted feet: move as the source's did (follow, default), held still (pin), no foot IK (off)",
+    )  # fmt: skip
+    p.add_argument("--source-map", default=None, help="YAML/JSON overrides of the input's humanoid map")
+    p.add_argument("--target-map", default=None, help="YAML/JSON overrides of the target's humanoid map")
+    p.add_argument(
+        "--reference-frame", type=count(0), default=None,
+        help="the input's frame to align on (default: its rest pose; a standing frame when that is no pose)",
+    )  # fmt: skip
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.set_defaults(run=run_retarget)
 
     p = sub.add_parser("view", help="play BVH files side by side in 3-D in the browser (orbit, scrub, play)")
     p.add_argument("files", nargs="+", help="BVH files (any skeleton; shown Y up in metres)")
@@ -93,6 +117,10 @@ def add_scan(data) -> None:
     d.add_argument("--name", default=None, help="config name (default: the folder's name)")
     d.add_argument("--out", default=None, help="folder to write the two configs into")
     d.add_argument("--overwrite", action="store_true", help="replace existing configs")
+    d.add_argument(
+        "--no-timing", dest="timing", action="store_false",
+        help="with --out: do not time a few batches of each config to print the expected training time",
+    )  # fmt: skip
     d.set_defaults(run=run_scan)
 
 
@@ -131,6 +159,23 @@ def run_convert(args: argparse.Namespace) -> None:
     )
 
 
+def run_retarget(args: argparse.Namespace) -> None:
+    from walkdiff.motion.retarget_files import retarget_file
+
+    print(
+        retarget_file(
+            args.input,
+            args.to,
+            args.out,
+            feet=args.feet,
+            source_map=args.source_map,
+            target_map=args.target_map,
+            reference_frame=args.reference_frame,
+            overwrite=args.overwrite,
+        )  # fmt: skip
+    )
+
+
 def run_view(args: argparse.Namespace) -> None:
     from walkdiff.preview.view import view
 
@@ -146,7 +191,15 @@ def run_scan(args: argparse.Namespace) -> None:
         options["profile"] = read_config(options["profile"], "--profile")
     if options["mirror_labels"] is not None:
         options["mirror_labels"] = dict(options["mirror_labels"])
-    print(scan(**options))
+    timing = options.pop("timing")
+    print(scan(**options), flush=True)
+    if args.out is not None and timing:
+        from walkdiff.bench.plan import plan, plan_lines
+        from walkdiff.data.scan import config_name
+
+        name = config_name(args.name if args.name is not None else Path(args.folder).resolve().name)
+        configs = [Path(args.out) / f"evaluator_{name}.yaml", Path(args.out) / f"{name}.yaml"]
+        print("\n".join(plan_lines(plan(configs))))
 
 
 def run_split(args: argparse.Namespace) -> None:

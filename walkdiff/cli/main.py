@@ -44,10 +44,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 argv = words
         threads, why = choose_threads(threads_flag)
-        apply_threads(threads)
-        if words and words[0] == "fit":
-            print(f"walkdiff: torch computes with {threads} thread{'s' * (threads > 1)} ({why}; "
-                  "--threads N to change)", file=sys.stderr)  # fmt: skip
+        apply_threads(threads, why)
         if words and words[0] in LIGHTNING_VERBS:
             lightning_cli(argv)  # None: LightningCLI reads sys.argv itself
             return 0

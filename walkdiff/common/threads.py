@@ -54,9 +54,13 @@ def choose_threads(flag: str | None) -> tuple[int, str]:
     return available_cores(), "the cores available to this process"
 
 
-def apply_threads(threads: int) -> None:
+CHOSEN: list[str] = []  # what the command chose and why, said by `fit` once training starts
+
+
+def apply_threads(threads: int, why: str = "") -> None:
     """Set torch's intra-op threads: through the environment when torch is not imported yet (importing it
     costs a second that commands without torch should not pay), directly when it is."""
+    CHOSEN[:] = [f"torch computes with {threads} thread{'s' * (threads > 1)} ({why}; --threads N to change)"]
     os.environ["OMP_NUM_THREADS"] = str(threads)
     torch = sys.modules.get("torch")
     if torch is not None:
