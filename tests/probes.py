@@ -76,7 +76,6 @@ trainer:
         dirpath: checkpoints/{name}
         filename: last
         save_top_k: 1
-        every_n_train_steps: {batches}
 {extra}model:
   class_path: walkdiff.models.styled_ddpm.StyledMotionDiffusion
   init_args:

@@ -138,6 +138,10 @@ def split_commands(text: str) -> list[list[str]]:
     for words in commands:
         while words and re.match(r"^[A-Za-z_][A-Za-z0-9_]*=", words[0]):
             words = words[1:]
+        if words[:1] == ["walkdiff"]:  # global options, which `main` takes off before parsing
+            from walkdiff.cli.main import _pop_threads
+
+            _pop_threads(words)
         if words:
             result.append(words)
     return result

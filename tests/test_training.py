@@ -149,8 +149,8 @@ def test_ddp_two_processes_through_the_cli(tiny_root, tmp_path):
         sys.executable, "-m", "walkdiff.cli.main", "fit", "--config", str(config),
         "--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu",
         "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
-        "--trainer.check_val_every_n_epoch", "1", "--trainer.enable_progress_bar", "false",
-        "--trainer.log_every_n_steps", "1",
+        "--trainer.check_val_every_n_epoch", "1", "--trainer.val_check_interval", "2",
+        "--trainer.enable_progress_bar", "false", "--trainer.log_every_n_steps", "1",
         "--model.d_model", "32", "--model.layers", "1", "--model.heads", "2",
         "--model.adv_warmup_batches", "0", "--data.batch_size", "4",
         # No metrics callback here (it needs a trained evaluator): just the latest checkpoint.

@@ -111,14 +111,9 @@ class RunCheckpoint(ModelCheckpoint):
 
     def on_train_end(self, trainer, pl_module) -> None:
         super().on_train_end(trainer, pl_module)
-        # A checkpoint without a monitor (last.ckpt) saved every N batches also keeps the final batches
-        # of a run that ends between two saves (a short or overridden run, or one stopped by max_time).
-        if (
-            self.monitor is None
-            and (self._every_n_train_steps or 0) > 0
-            and trainer.global_step > self._last_global_step_saved
-            and not trainer.sanity_checking
-        ):
+        # A checkpoint without a monitor (last.ckpt) also keeps the batches after its last save: a run
+        # that ends between validations (a short or overridden run, one stopped by max_time).
+        if self.monitor is None and trainer.global_step > self._last_global_step_saved:
             self._save_none_monitor_checkpoint(trainer, self._monitor_candidates(trainer))
         if self.monitor is not None and self._judged is None and trainer.is_global_zero:
             logged = ", ".join(sorted(set(trainer.callback_metrics) - {"epoch", "step"})) or "none"

@@ -371,15 +371,15 @@ trainer:
 """
 
 
-def _last_checkpoint(directory: str, every: int) -> str:
-    """The checkpoint without a monitor: last.ckpt (a link into the run's folder), every N batches."""
+def _last_checkpoint(directory: str) -> str:
+    """The checkpoint without a monitor: last.ckpt (a link into the run's folder), after every validation
+    and when training ends (`RunCheckpoint.on_train_end`)."""
     return f"""\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         dirpath: {_yaml(directory)}
         filename: last
         save_top_k: 1
-        every_n_train_steps: {every}       # also when a run ends before its first validation
 """
 
 
@@ -432,7 +432,7 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict, validat
         + "  callbacks:\n"
         + (best if validate else "    # No val clips: no best checkpoint by validation accuracy.\n")
         + "    # The latest as last.ckpt: the generator's metrics use it.\n"
-        + _last_checkpoint(directory, EVALUATOR_VALIDATE)
+        + _last_checkpoint(directory)
         + """\
 model:
   class_path: walkdiff.models.evaluator.MotionEvaluator
@@ -501,7 +501,7 @@ def _generator_config(
         + _logger(name, name)
         + "  callbacks:\n"
         + (measured if validate else "")
-        + _last_checkpoint(directory, GENERATOR_VALIDATE)
+        + _last_checkpoint(directory)
         + (previews if validate else "")
         + """\
 model:

@@ -49,8 +49,8 @@ def retarget_file(
         raise WalkdiffError("the output exists; pass --overwrite to replace it", path=out)
     if Path(source).resolve() == Path(out).resolve():
         raise WalkdiffError("the output is the input: write to another file", path=out)
+    rig_clip, named = target_rig(target)  # a wrong --to is said before the clip is read
     clip = read_bvh(source)
-    rig_clip, named = target_rig(target)
     maps = {
         name: read_config(path, option) if path else None
         for name, path, option in (
