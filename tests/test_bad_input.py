@@ -54,8 +54,14 @@ CASES = {
     "convert a missing file": (["convert", "missing.bvh", "out.bvh"], ["missing.bvh"]),
     "convert onto itself": (["convert", "text.bvh", "text.bvh", "--overwrite"], ["text.bvh"]),
     "convert a bad rate": (["convert", "text.bvh", "o.bvh", "--fps", "inf"], ["--fps", "finite"]),
-    "retarget a missing file": (["retarget", "missing.bvh", "--to", "smpl", "--out", "o.bvh"], ["missing.bvh"]),
-    "retarget to an unknown rig": (["retarget", "text.bvh", "--to", "maya", "--out", "o.bvh"], ["maya", "smpl"]),
+    "retarget a missing file": (
+        ["retarget", "missing.bvh", "--to", "smpl", "--out", "o.bvh"],
+        ["missing.bvh"],
+    ),
+    "retarget to an unknown rig": (
+        ["retarget", "text.bvh", "--to", "maya", "--out", "o.bvh"],
+        ["maya", "smpl"],
+    ),
     "scan a missing folder": (["data", "scan", "nowhere"], ["nowhere"]),
     "scan an empty folder": (["data", "scan", "folder"], ["folder", ".bvh"]),
     "scan a fraction over 1": (["data", "scan", "folder", "--val-fraction", "1.5"], ["--val-fraction"]),
