@@ -453,3 +453,12 @@ def test_the_retarget_command_writes_each_built_in_rig_and_a_users_rig(xia_dir, 
     assert "expected an output ending in .bvh or .glb" in capsys.readouterr().err
     assert main(["retarget", str(source), "--to", "smpl", "--out", str(tmp_path / "smpl.bvh")]) == 1
     assert "pass --overwrite" in capsys.readouterr().err
+
+
+def test_inspect_prints_the_humanoid_map(xia_dir, capsys):
+    from walkdiff.cli.main import main
+
+    assert main(["inspect", str(xia_dir / "proud_01_000.bvh")]) == 0
+    out = capsys.readouterr().out
+    assert "humanoid map (what `walkdiff retarget` uses):" in out
+    assert "left_thigh      LeftUpLeg [name]" in out and "right_hand      RightHand [name]" in out

@@ -10,6 +10,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import read_config
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.gltf import write_glb
+from walkdiff.motion.humanoid import humanoid_map
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.mirror import mirror
 from walkdiff.motion.profile import SkeletonProfile
@@ -86,7 +87,19 @@ def inspect_file(path: str, profile: str | None = None) -> str:
     notes = list(found.notes) + suspicious(canonical, world, found.body_height)
     lines.append("suspicious: " + ("none" if not notes else ""))
     lines += [f"  - {n}" for n in notes]
+    lines += _humanoid_lines(motion)
     return "\n".join(lines)
+
+
+def _humanoid_lines(motion: Motion) -> list[str]:
+    """The humanoid map `walkdiff retarget` would use, or why there is none."""
+    try:
+        hmap = humanoid_map(motion)
+    except WalkdiffError as error:  # not a humanoid (or not one we recognise): inspect still reports
+        return [f"humanoid:  none ({error}); retargeting needs a map (--source-map/--target-map)"]
+    return ["humanoid map (what `walkdiff retarget` uses):"] + [
+        f"  {line}" for line in hmap.describe(motion.skeleton)
+    ]
 
 
 def convert_file(
