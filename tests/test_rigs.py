@@ -17,17 +17,8 @@ from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.mirror import find_mirror_pairs
 from walkdiff.motion.profile import SkeletonProfile
-from walkdiff.motion.profile_detection import axis_rotation
+from walkdiff.motion.profile_detection import AXES, axis_rotation
 from walkdiff.motion.rigs import RIGS, SPECS, STATURE_M, rig
-
-AXES = {
-    "+x": (1, 0, 0),
-    "-x": (-1, 0, 0),
-    "+y": (0, 1, 0),
-    "-y": (0, -1, 0),
-    "+z": (0, 0, 1),
-    "-z": (0, 0, -1),
-}
 
 # Joints playing each role on the left side (and the centre), per rig.
 ROLES = {

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from walkdiff.cli.options import PROFILE_HELP, keyword_options
 from walkdiff.common.arguments import count, number
@@ -195,11 +194,9 @@ def run_scan(args: argparse.Namespace) -> None:
     print(scan(**options), flush=True)
     if args.out is not None and timing:
         from walkdiff.bench.plan import plan, plan_lines
-        from walkdiff.data.scan import config_name
+        from walkdiff.data.scan import config_paths
 
-        name = config_name(args.name if args.name is not None else Path(args.folder).resolve().name)
-        configs = [Path(args.out) / f"evaluator_{name}.yaml", Path(args.out) / f"{name}.yaml"]
-        print("\n".join(plan_lines(plan(configs))))
+        print("\n".join(plan_lines(plan(list(config_paths(args.folder, args.out, args.name))))))
 
 
 def run_split(args: argparse.Namespace) -> None:

@@ -79,8 +79,7 @@ def scan(
     clips = source.list_clips()
     splits = source.split_clips(clips, ContentSelection(tuple(source.groups)))
     name = config_name(name if name is not None else folder.name)
-    out = None if out is None else Path(out).expanduser()
-    paths = () if out is None else (out / f"evaluator_{name}.yaml", out / f"{name}.yaml")
+    paths = () if out is None else config_paths(folder, out, name)
     existing = [p for p in paths if p.exists()]
     if existing and not overwrite:
         raise WalkdiffError("config exists: pass overwrite (--overwrite) to replace it", path=existing[0])
@@ -125,6 +124,13 @@ def scan(
     lines.append(f"Wrote {paths[0]} and {paths[1]}. Train the evaluator of the metrics, then the generator:")
     lines += [f"  walkdiff fit --config {p}" for p in paths]
     return "\n".join(lines)
+
+
+def config_paths(folder: str | Path, out: str | Path, name: str | None = None) -> tuple[Path, Path]:
+    """The evaluator's and the generator's config files `scan` writes into `out`."""
+    name = config_name(name if name is not None else Path(folder).expanduser().resolve().name)
+    out = Path(out).expanduser()
+    return out / f"evaluator_{name}.yaml", out / f"{name}.yaml"
 
 
 def config_name(text: str) -> str:
