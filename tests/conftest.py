@@ -37,3 +37,27 @@ def no_leaked_tracking_uri(monkeypatch):
     """Lightning's MLFlowLogger exports its URI as MLFLOW_TRACKING_URI for the rest of the process: each
     test starts, and ends, with the environment it was given."""
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+
+
+@pytest.fixture(scope="session")
+def xia_tiny(xia_dir, tmp_path_factory) -> dict[str, Path]:
+    """A tiny generator (two epochs) and a tiny path walker (four steps) fitted on twelve real Xia walks: a
+    humanoid with arms, which the synthetic skeleton has not. Good for running commands, not for quality."""
+    import tiny
+
+    root = tmp_path_factory.mktemp("xia_tiny")
+    (root / "xia").mkdir()
+    for style in ("neutral", "old"):
+        for content in (1, 2, 3, 5, 6, 7):
+            name = f"{style}_{content:02d}_000.bvh"
+            (root / "xia" / name).symlink_to(xia_dir / name)
+    return {"generator": tiny.generator(root, epochs=2, timesteps=20), "walker": tiny.walker(root)[1]}
+
+
+@pytest.fixture
+def empty_folder(tmp_path, monkeypatch) -> Path:
+    """The working folder, empty: whatever the API writes unasked would show up here."""
+    folder = tmp_path / "work"
+    folder.mkdir()
+    monkeypatch.chdir(folder)
+    return folder

@@ -19,6 +19,7 @@ import torch
 import walkdiff
 from walkdiff.autoregressive.gesture import GestureGenerator, gesture
 from walkdiff.autoregressive.walk import PathFollower, walk
+from walkdiff.cli.main import main
 from walkdiff.data.speech import read_wav
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -47,15 +48,6 @@ def walker(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def gestures(tmp_path_factory) -> tuple[Path, Path]:
     return tiny.gestures(tmp_path_factory.mktemp("gestures"))
-
-
-@pytest.fixture
-def empty_folder(tmp_path, monkeypatch) -> Path:
-    """The working folder, empty: whatever the API writes unasked would show up here."""
-    folder = tmp_path / "work"
-    folder.mkdir()
-    monkeypatch.chdir(folder)
-    return folder
 
 
 def test_import_walkdiff_alone_imports_no_torch():
@@ -218,6 +210,25 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
         model.gesture(samples, rate=rate, samples=0)
 
 
+def test_a_model_without_arms_cannot_be_retargeted_is_refused(styled, gestures, tmp_path, capsys):
+    """A model whose skeleton has no arms (the synthetic one) cannot be put on a humanoid rig: the error
+    names what is missing, and nothing is written. Streams refuse --to and say how to retarget after."""
+    with pytest.raises(walkdiff.WalkdiffError, match=r"the source \(the clip's skeleton\) is not a humanoid "
+                       r"rig: no arms \(left_upper_arm"):  # fmt: skip
+        walkdiff.load(styled).sample("old", frames=30, to="smpl", **FAST)
+    out = tmp_path / "none"
+    argv = ["sample", "--ckpt", str(styled), "--style", "old", "--out", str(out), "--num", "1",
+            "--frames", "30", "--sampler", "ddim", "--steps", "2", "--to", "smpl"]  # fmt: skip
+    assert main(argv) == 1
+    assert "no arms" in capsys.readouterr().err and not out.exists()
+    ckpt, takes = gestures
+    with pytest.raises(walkdiff.WalkdiffError, match="no arms"):
+        walkdiff.load(ckpt).gesture(takes / "b.wav", to="mixamo")
+    argv = ["gesture", "--ckpt", str(ckpt), "--audio", "-", "--out", str(out), "--stream", "--to", "smpl"]
+    assert main(argv) == 1
+    assert "--to does not work with --stream" in capsys.readouterr().err
+
+
 # ---------------------------------------------------------------- the documentation's examples
 
 
@@ -239,17 +250,11 @@ def python_blocks() -> list:
 
 
 @pytest.fixture(scope="module")
-def documented_files(xia_dir, tmp_path_factory, walker, gestures) -> dict[str, Path]:
-    """What the examples name, by the name they use: a tiny generator fitted for two epochs on twelve real
-    Xia walks (so that it takes a real Xia clip), the tiny walker and gesture model, a Xia walk, speech."""
-    root = tmp_path_factory.mktemp("documented")
-    (root / "xia").mkdir()
-    for style in ("neutral", "old"):
-        for content in (1, 2, 3, 5, 6, 7):
-            name = f"{style}_{content:02d}_000.bvh"
-            (root / "xia" / name).symlink_to(xia_dir / name)
+def documented_files(xia_dir, xia_tiny, walker, gestures) -> dict[str, Path]:
+    """What the examples name, by the name they use: the tiny generator of real Xia walks (so that it takes
+    a real Xia clip), the tiny walker and gesture model, a Xia walk, speech."""
     return {
-        "checkpoints/xia_cpu/best.ckpt": tiny.generator(root, epochs=2, timesteps=20),
+        "checkpoints/xia_cpu/best.ckpt": xia_tiny["generator"],
         "checkpoints/walk_xia/last.ckpt": walker,
         "checkpoints/diffmotion_zeggs/last.ckpt": gestures[0],
         "my_walk.bvh": xia_dir / "neutral_01_000.bvh",

@@ -118,6 +118,13 @@ def test_cli_offers_every_sampler_the_samplers_know():
     assert options.SAMPLERS == diffusion.SAMPLERS
 
 
+def test_cli_names_every_built_in_rig():
+    from walkdiff.cli import options
+    from walkdiff.motion.rigs import RIGS
+
+    assert options.RIG_NAMES == tuple(RIGS)
+
+
 def test_convert_refuses_to_clobber_and_bad_rates(xia_dir, tmp_path, capsys):
     source = tmp_path / "clip.bvh"
     source.write_bytes((xia_dir / "old_07_000.bvh").read_bytes())

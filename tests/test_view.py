@@ -16,7 +16,7 @@ import pytest
 from disguise import disguise
 
 from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.preview.view import ROW_SPACING, WINDOW, lay_out, limb_pixels, load_clip, skeletons_shown
+from walkdiff.preview.view import ROW_SPACING, WINDOW, lay_out, limb_pixels, load_clips, skeletons_shown
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # CI installs Debian's chromium (.ci/run); elsewhere the browser test runs where one is installed.
@@ -34,7 +34,7 @@ def clips(xia_dir, tmp_path):
 
 
 def test_clips_stand_up_in_metres_and_walk_the_same_way_in_rows(clips):
-    loaded = [load_clip(path) for path in clips]
+    loaded = [load_clips(path)[0] for path in clips]
     centre, distance = lay_out(loaded)
     for row, clip in enumerate(loaded):
         first = clip.positions[0]
@@ -126,7 +126,7 @@ def test_a_one_joint_clip_is_a_moving_point_and_inspect_and_convert_take_it(xia_
 
     path = tmp_path / "point.bvh"
     path.write_text(ONE_JOINT)
-    clip = load_clip(path)
+    clip = load_clips(path)[0]
     assert not clip.has_bones and clip.colors.shape == (0, 2, 3)
     assert clip.drawn(0.0).shape == (1, 3) and clip.drawn(0.1)[0, 0] - clip.drawn(0.0)[0, 0] == pytest.approx(
         0.1

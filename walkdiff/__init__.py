@@ -12,6 +12,7 @@ __version__ = "0.1.0"
 _API = {
     "load": "walkdiff.api",
     "Take": "walkdiff.motion.take",
+    "TargetRig": "walkdiff.motion.target_rig",
     "Motion": "walkdiff.motion.skeleton",
     "read_bvh": "walkdiff.motion.bvh",
     "WalkdiffError": "walkdiff.common.errors",

@@ -45,6 +45,7 @@ from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
 
 SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
@@ -113,16 +114,19 @@ class GestureGenerator(Pipeline):
         steps: int | None = None,
         eta: float = 0.0,
         rate: int | None = None,
+        to: TargetRig | str | os.PathLike | None = None,
     ) -> list[Take]:
         """`samples` gesture clips, one frame per 1/fps of the speech: a WAV file, or samples (N,) or
-        (N, channels) at `rate` Hz. `smooth`: DiffMotion's Savitzky-Golay filter (the command's --smooth)."""
+        (N, channels) at `rate` Hz. `smooth`: DiffMotion's Savitzky-Golay filter (the command's --smooth).
+        `to`: a rig to play them on (`Take.retarget`)."""
         choice = SamplerChoice(sampler, steps, eta)
+        rig = TargetRig.of(to)
         if samples < 1:
             raise WalkdiffError(f"samples must be >= 1, got {samples}")
         sound, rate = self.listen(audio, rate, samples)
         mel = log_mel(sound, rate, self.fps, self.model.spec["audio_dim"])
         clips = synthesize(self.model, mel, samples, seed, smooth, choice)
-        return [self.take(to_motion(self.model, clip)) for clip in clips]
+        return [self.take(to_motion(self.model, clip), rig) for clip in clips]
 
     def listen(
         self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1
@@ -160,21 +164,25 @@ def write_clips(
     titles: list[str],
     cap: PreviewCap = DEFAULT_PREVIEW,
     audio: tuple[np.ndarray, int] | None = None,
+    rig: TargetRig | None = None,
 ) -> tuple[list[Path], dict]:
-    """One BVH per clip of features, and a GIF and an MP4 (with `audio`, the speech, as its sound) of the
-    first seconds of all of them side by side; the files and what the preview shows."""
+    """One BVH per clip of features (on the training files' skeleton, or played by `rig`), and a GIF and
+    an MP4 (with `audio`, the speech, as its sound) of the first seconds of all of them side by side; the
+    files and what the preview shows."""
     out.mkdir(parents=True, exist_ok=True)
     fps = model.spec["fps"]
     shown = cap.frames(max(len(c) for c in clips), fps, len(clips))
     files, positions = [], []
     for clip, title in zip(clips, titles):
-        motion = to_motion(model, clip)
+        take = Take.from_canonical(to_motion(model, clip), model.profile)
+        take = take if rig is None else take.retarget(rig)
         path = out / (f"{stem}.bvh" if len(clips) == 1 else f"{stem}_{title}.bvh")
-        write_bvh(path, model.to_file(motion))
+        write_bvh(path, take.motion)
         files.append(path)
-        positions.append(motion_world_positions(motion.slice(0, shown)))
+        canonical = take.canonical()
+        positions.append(motion_world_positions(canonical.slice(0, shown)))
     gif = out / f"{stem}.gif"
-    skeleton = model.skeleton
+    skeleton = canonical.skeleton  # without the static joints above the body
     render_gif(
         gif, positions, skeleton.parents, fps, names=skeleton.names, titles=titles, cap=cap, video=True,
         audio=audio,
@@ -194,9 +202,13 @@ def gesture(
     sampler: str = "ddpm",
     steps: int | None = None,
     eta: float = 0.0,
+    to: str | None = None,
+    to_map: str | None = None,
 ) -> dict:
-    """`walkdiff gesture`: BVH(s) and a GIF (of their first `preview_seconds`) for a WAV file."""
+    """`walkdiff gesture`: BVH(s) and a GIF (of their first `preview_seconds`) for a WAV file; `to`: a
+    rig to play them on (`TargetRig`)."""
     choice = SamplerChoice(sampler, steps, eta)
+    rig = None if to is None else TargetRig(to, to_map)
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
     cap = PreviewCap(preview_seconds)
@@ -212,13 +224,16 @@ def gesture(
     clips = synthesize(model, mel, streams, seed, smooth, choice)
     elapsed = time.perf_counter() - start
     with output_set(out):  # all or none: no BVH without the others and the preview
-        files, preview = write_clips(Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate))
+        files, preview = write_clips(
+            Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate), rig=rig
+        )
     return {
         "frames": len(mel),
         "seconds": len(mel) / model.spec["fps"],
         "streams": streams,
         "sampler": choice.label(model.diffusion),
         "seconds_per_frame": elapsed / len(mel),
+        "retarget": None if rig is None else rig.record(),
         "files": [str(f) for f in files],
         "preview": preview,
     }

@@ -27,6 +27,7 @@ from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_pa
 from walkdiff.motion.representation import decode
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 
@@ -96,13 +97,16 @@ class PathFollower(Pipeline):
         sampler: str = "ddpm",
         steps: int | None = None,
         eta: float = 0.0,
+        to: TargetRig | str | os.PathLike | None = None,
     ) -> Take:
         """`style` walking along `path` ((x, z) points or a Polyline in metres, or a path file) at `speed`
-        m/s: by default the file's, else the style's own pace in the training data."""
+        m/s: by default the file's, else the style's own pace in the training data. `to`: a rig to play
+        it on (its root path is then the walk's scaled by the legs' length ratio)."""
         choice = SamplerChoice(sampler, steps, eta)
+        rig = TargetRig.of(to)
         metres, file_speed = path_in_metres(path)
         motion, _ = self.walk_along(metres, style, file_speed if speed is None else speed, seed, choice)
-        return self.take(motion)
+        return self.take(motion, rig)
 
     def check(self, style: str, speed: float | None) -> int:
         """The style's index, once the style and the speed (m/s, None: the style's own) are valid."""
@@ -181,13 +185,14 @@ def plot_paths(out: str | Path, panels: list[tuple[str, Polyline, list[tuple[str
     return written
 
 
-def render_walk(gif: Path, model, motion: Motion, path: Polyline, cap: PreviewCap, title: str | None = None):
-    """The walk's GIF and MP4, with the requested path (in the model's units) drawn on the ground."""
-    skeleton = model.skeleton
+def render_walk(gif: Path, take: Take, path: Polyline, cap: PreviewCap, title: str | None = None):
+    """The walk's GIF and MP4, with the requested path (in the take's units) drawn on the ground."""
+    motion = take.canonical()
+    skeleton = motion.skeleton  # without the static joints above the body
     positions = motion_world_positions(motion.slice(0, cap.frames(motion.num_frames, motion.fps)))
     return render_gif(
         gif, [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap, video=True,
-        marks=Marks.of(model.profile), paths=[path.points], titles=None if title is None else [title],
+        marks=Marks.of(take.profile), paths=[path.points], titles=None if title is None else [title],
     )  # fmt: skip
 
 
@@ -204,10 +209,14 @@ def walk(
     sampler: str = "ddpm",
     steps: int | None = None,
     eta: float = 0.0,
+    to: str | None = None,
+    to_map: str | None = None,
 ) -> dict:
     """`walkdiff walk`: a BVH (+ a GIF of its first `preview_seconds` and a top-down plot) of the style
-    walking along the path file, each frame drawn by the sampler (`SamplerChoice`)."""
+    walking along the path file, each frame drawn by the sampler (`SamplerChoice`); `to`: a rig to play
+    it on (`TargetRig`)."""
     choice = SamplerChoice(sampler, steps, eta)
+    rig = None if to is None else TargetRig(to, to_map)
     cap = PreviewCap(preview_seconds) if gif else None
     follower = PathFollower.load(ckpt)
     model = follower.model
@@ -226,7 +235,9 @@ def walk(
     elapsed = time.perf_counter() - started
     root_xz = motion.root_positions[:, [0, 2]]
     with output_set(out):
-        files = _write_walk(out, stem, model, motion, metres, style, cap)
+        take = follower.take(motion, rig)
+        scale = 1.0 if rig is None else rig.retargeter(take.motion).metric_leg_ratio
+        files = _write_walk(out, stem, take, metres, style, cap, scale)
         manifest = {
             "checkpoint": str(ckpt),
             "style": style,
@@ -239,6 +250,7 @@ def walk(
             "seconds": motion.num_frames / motion.fps,
             "generation_seconds": round(elapsed, 2),
             "path_error_m": path_error(metres, root_xz * unit),
+            "retarget": None if rig is None else rig.record(),
             "files": [str(f) for f in files],
             "preview": None if cap is None else cap.describe(motion.num_frames, motion.fps),
         }
@@ -247,17 +259,20 @@ def walk(
 
 
 def _write_walk(
-    out: Path, stem: str, model, motion: Motion, metres: Polyline, style: str, cap: PreviewCap | None
+    out: Path, stem: str, take: Take, metres: Polyline, style: str, cap: PreviewCap | None, scale: float = 1.0
 ) -> list[Path]:
-    """A walk's BVH, its top-down plot in metres and, unless `cap` is None, its GIF and MP4."""
-    unit = model.profile.metres_per_unit
+    """A walk's BVH (on the training files' skeleton or a --to rig's), its top-down plot in metres and,
+    unless `cap` is None, its GIF and MP4. On a rig of other proportions the walk's path is the model's
+    scaled by the legs' length ratio (`scale`, in metres): the plot and preview show the requested path
+    scaled the same way."""
+    unit, canonical = take.metres_per_unit, take.canonical()
     bvh = out / f"{stem}.bvh"
-    root_xz = motion.root_positions[:, [0, 2]]
-    write_bvh(bvh, model.to_file(motion))
-    files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, metres, [(style, root_xz * unit)])])]
+    root_xz = canonical.root_positions[:, [0, 2]]
+    write_bvh(bvh, take.motion)
+    requested = Polyline.of(metres.points * scale)
+    files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, requested, [(style, root_xz * unit)])])]
     if cap is not None:
-        polyline = Polyline.of(metres.points / unit)  # drawn in the model's units, as it walked
-        gif = render_walk(out / f"{stem}.gif", model, motion, polyline, cap)
+        gif = render_walk(out / f"{stem}.gif", take, Polyline.of(requested.points / unit), cap)
         files += [gif, gif.with_suffix(".mp4")]
     return files
 

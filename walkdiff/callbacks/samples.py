@@ -220,6 +220,7 @@ class WalkSamples(L.Callback):
     ) -> list[Path]:
         from walkdiff.autoregressive.walk import path_error, plot_paths, render_walk, to_motion, walk_paths
         from walkdiff.motion.path import Polyline
+        from walkdiff.motion.take import Take
 
         styles = list(pl_module.spec["styles"])
         walked = [s for s, speed in zip(styles, pl_module.style_speed.tolist(), strict=True) if speed > 0]
@@ -235,8 +236,9 @@ class WalkSamples(L.Callback):
             out = Path(folder or tmp)
             out.mkdir(parents=True, exist_ok=True)
             bvh = out / f"{style}_walk.bvh"
-            write_bvh(bvh, pl_module.to_file(motion))
-            gif = render_walk(out / f"{style}_walk.gif", pl_module, motion, path, GRID_CAP, title=style)
+            take = Take.from_canonical(motion, pl_module.profile)
+            write_bvh(bvh, take.motion)
+            gif = render_walk(out / f"{style}_walk.gif", take, path, GRID_CAP, title=style)
             skeleton = pl_module.skeleton
             error = path_error(self.metres, motion.root_positions[:, [0, 2]] * unit)
             title = f"{style} · off the path by {error['mean_distance']:.2f} m on average"

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import PREVIEW_HELP, frame_sampler_options, keyword_options
+from walkdiff.cli.options import PREVIEW_HELP, frame_sampler_options, keyword_options, rig_options
 from walkdiff.common.arguments import count, number
 from walkdiff.common.errors import WalkdiffError
 
@@ -53,6 +53,7 @@ def add_gesture(sub) -> None:
         default=None,
         help="with --stream: stop after this much audio",
     )
+    rig_options(p)
     p.set_defaults(run=run_gesture)
 
 
@@ -83,6 +84,7 @@ def add_walk(sub) -> None:
         "--idle", type=number(0, above=True), default=2.0,
         help="with --stream and a file: the path has ended once the file has not grown for this many seconds",
     )  # fmt: skip
+    rig_options(p)
     p.set_defaults(run=run_walk)
 
 
@@ -121,12 +123,22 @@ def stream_only(options: dict, names: tuple[str, ...]) -> None:
     del options["stream"]
 
 
+def no_rig_on_streams(options: dict) -> None:
+    """Streams send their poses as they are made, on the training skeleton: --to is refused there."""
+    if options.pop("to") is not None or options.pop("to_map") is not None:
+        raise WalkdiffError(
+            "--to does not work with --stream (the live poses are on the model's skeleton); retarget the "
+            "BVH the stream writes with `walkdiff retarget BVH --to RIG --out OUT`"
+        )
+
+
 def run_gesture(args: argparse.Namespace) -> None:
     from walkdiff.autoregressive import gesture
     from walkdiff.common.files import strict_json
 
     options = keyword_options(args)
     if args.stream:
+        no_rig_on_streams(options)
         del options["stream"], options["preview_seconds"]
         gesture.gesture_stream(**options)  # prints its own JSON lines
     else:
@@ -140,6 +152,7 @@ def run_walk(args: argparse.Namespace) -> None:
 
     options = keyword_options(args)
     if args.stream:
+        no_rig_on_streams(options)
         for key in ("stream", "gif", "preview_seconds"):
             del options[key]
         walk_stream(**options)  # prints its own JSON lines

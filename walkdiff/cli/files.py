@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from walkdiff.cli.options import PROFILE_HELP, keyword_options
+from walkdiff.cli.options import PROFILE_HELP, keyword_options, rig_options
 from walkdiff.common.arguments import count, number
 
 
@@ -26,6 +26,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--mirror", action="store_true", help="swap left and right (in world space)")
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    rig_options(p)
     p.set_defaults(run=run_convert)
 
     p = sub.add_parser(
@@ -56,6 +57,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--port", type=count(0), default=8080, help="port (default 8080; 0: any free port)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: this machine only)")
     p.add_argument("--profile", default=None, help=PROFILE_HELP)
+    rig_options(p)
     p.set_defaults(run=run_view)
 
     p = sub.add_parser("data", help="your own motion capture: `data scan DIR`, `data split DIR`")
@@ -154,6 +156,8 @@ def run_convert(args: argparse.Namespace) -> None:
             mirror_sides=args.mirror,
             profile=args.profile,
             overwrite=args.overwrite,
+            to=args.to,
+            to_map=args.to_map,
         )  # fmt: skip
     )
 
@@ -178,7 +182,7 @@ def run_retarget(args: argparse.Namespace) -> None:
 def run_view(args: argparse.Namespace) -> None:
     from walkdiff.preview.view import view
 
-    view(args.files, host=args.host, port=args.port, profile=args.profile)
+    view(args.files, host=args.host, port=args.port, profile=args.profile, to=args.to, to_map=args.to_map)
 
 
 def run_scan(args: argparse.Namespace) -> None:

@@ -12,6 +12,7 @@ from walkdiff.cli.options import (
     SAMPLER_HELP,
     SAMPLERS,
     keyword_options,
+    rig_options,
 )
 from walkdiff.common.arguments import count, number
 
@@ -64,6 +65,7 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
+    rig_options(p)
 
 
 def run_generation(args: argparse.Namespace) -> None:

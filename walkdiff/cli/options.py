@@ -10,6 +10,8 @@ from walkdiff.common.arguments import count, number
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
 # styled.generation.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
 MAX_GUIDANCE = 100.0
+# motion.rigs.RIGS, repeated for the same reason (a test keeps them equal).
+RIG_NAMES = ("mixamo", "unreal", "smpl")
 GUIDANCE_HELP = f"classifier-free guidance weight in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful)"
 SAMPLER_HELP = (
     "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "
@@ -38,3 +40,15 @@ def frame_sampler_options(p: argparse.ArgumentParser) -> None:
 def keyword_options(args: argparse.Namespace) -> dict:
     """The parsed options as keyword arguments of the function a command runs: all but the command's name."""
     return {key: value for key, value in vars(args).items() if key not in ("command", "what")}
+
+
+def rig_options(p: argparse.ArgumentParser) -> None:
+    """--to and --to-map: the rig the written motion is played on (walkdiff.motion.target_rig)."""
+    p.add_argument(
+        "--to", default=None, metavar="RIG",
+        help="write the motion on another humanoid rig: a BVH of your rig (its first frame is the pose it is "
+        f"aligned on) or a built-in rig ({', '.join(RIG_NAMES)}); see docs/motion.md#retargeting",
+    )  # fmt: skip
+    p.add_argument(
+        "--to-map", default=None, help="with --to: YAML/JSON of humanoid map overrides (role: joint name)"
+    )

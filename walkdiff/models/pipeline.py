@@ -6,6 +6,7 @@ from __future__ import annotations
 from walkdiff.models.base import MotionModule
 from walkdiff.motion.skeleton import Motion, Skeleton
 from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 
 
 class Pipeline:
@@ -25,6 +26,8 @@ class Pipeline:
         """The training files' skeleton, which every `Take` is on."""
         return self.model.profile.skeleton
 
-    def take(self, motion: Motion) -> Take:
-        """A canonical clip the model made, on the training files' skeleton, axes and units."""
-        return Take.from_canonical(motion, self.model.profile)
+    def take(self, motion: Motion, rig: TargetRig | None = None) -> Take:
+        """A canonical clip the model made, on the training files' skeleton, axes and units, or played
+        by `rig` on its own."""
+        take = Take.from_canonical(motion, self.model.profile)
+        return take if rig is None else take.retarget(rig)

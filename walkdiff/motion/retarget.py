@@ -100,8 +100,8 @@ class Retargeter:
         self.source_profile = source_profile or SkeletonProfile.detect(source)
         frame_clip = target_motion.slice(target_frame or 0, (target_frame or 0) + 1)
         self.target_profile = target_profile or SkeletonProfile.detect(frame_clip)
-        self.source_map = _map(source, source_map)
-        self.target_map = _map(frame_clip, target_map)
+        self.source_map = _map(source, source_map, "the source (the clip's skeleton)")
+        self.target_map = _map(frame_clip, target_map, "the target rig")
         self.source_ref = _source_reference(
             source, self.source_map, self.source_profile.turn, reference_frame
         )
@@ -117,6 +117,10 @@ class Retargeter:
             )
         self.drives, self.links = alignment(self.source_ref, self.target_ref)
         self.leg_ratio = _leg_length(self.target_ref) / _leg_length(self.source_ref)
+        # The same in metres: how much farther the target travels than the source.
+        self.metric_leg_ratio = (
+            self.leg_ratio * self.target_profile.metres_per_unit / self.source_profile.metres_per_unit
+        )
         self._prepare()
 
     # ------------------------------------------------------------ set-up
@@ -350,10 +354,15 @@ def _target_motion(target: Motion | Skeleton, frame: int | None) -> tuple[Motion
     return target, (frame % target.num_frames if frame is not None else None)
 
 
-def _map(motion: Motion, given: HumanoidMap | dict | None) -> HumanoidMap:
+def _map(motion: Motion, given: HumanoidMap | dict | None, which: str) -> HumanoidMap:
     if isinstance(given, HumanoidMap):
         return given
-    return humanoid_map(motion, given)
+    try:
+        return humanoid_map(motion, given)
+    except WalkdiffError as error:  # say which of the two rigs it is
+        raise WalkdiffError(
+            f"retarget: {which} is {error.reason}", path=error.path, line=error.line
+        ) from None
 
 
 def _pose_problem(ref: Reference) -> str | None:

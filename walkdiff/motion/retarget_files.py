@@ -14,20 +14,7 @@ from walkdiff.common.files import read_config
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.retarget import Retargeter
-from walkdiff.motion.rigs import RIGS, rig
-from walkdiff.motion.skeleton import Motion
-
-
-def target_rig(target: str) -> tuple[Motion, str]:
-    """(the target rig as a clip whose frame 0 is its reference pose, how it was named)."""
-    if target.lower() in RIGS:
-        return rig(target), f"built-in rig {target.lower()}"
-    path = Path(target)
-    if path.suffix.lower() != ".bvh" or not path.is_file():
-        raise WalkdiffError(
-            f"--to: expected a BVH file of your rig or a built-in rig ({', '.join(RIGS)})", path=target
-        )
-    return read_bvh(path), str(path)
+from walkdiff.motion.target_rig import rig_clip
 
 
 def retarget_file(
@@ -49,7 +36,7 @@ def retarget_file(
         raise WalkdiffError("the output exists; pass --overwrite to replace it", path=out)
     if Path(source).resolve() == Path(out).resolve():
         raise WalkdiffError("the output is the input: write to another file", path=out)
-    rig_clip, named = target_rig(target)  # a wrong --to is said before the clip is read
+    rig, named = rig_clip(target)  # a wrong --to is said before the clip is read
     clip = read_bvh(source)
     maps = {
         name: read_config(path, option) if path else None
@@ -58,7 +45,7 @@ def retarget_file(
             ("target", target_map, "--target-map"),
         )
     }
-    retargeter = Retargeter(clip, rig_clip, maps["source"], maps["target"], reference_frame, feet=feet)
+    retargeter = Retargeter(clip, rig, maps["source"], maps["target"], reference_frame, feet=feet)
     result = retargeter(clip)
     if suffix == ".glb":  # glTF is Y-up in metres: the target's canonical clip, scaled
         profile = retargeter.target_profile

@@ -13,12 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.target_rig import TargetRig
 
 # How the no-overwrite error names the way out, in Python.
 OVERWRITE = "overwrite=True"
@@ -59,6 +61,10 @@ class Take:
         """The files' unit in metres, to read `positions` in metres."""
         return self.profile.metres_per_unit
 
+    def canonical(self) -> Motion:
+        """The clip in walkdiff's canonical form (Y up, the body below the root), in the files' units."""
+        return self.profile.to_canonical(self.motion)
+
     def to_bvh(self, path: str | Path, overwrite: bool = False) -> Path:
         """The clip as a BVH file (what the commands write), refusing to replace one unless `overwrite`."""
         path = Path(path)
@@ -71,7 +77,23 @@ class Take:
         `overwrite`."""
         path = Path(path)
         check_free([path], overwrite, OVERWRITE)
-        return write_glb(path, self.profile.to_canonical(self.motion), self.profile.metres_per_unit)
+        return write_glb(path, self.canonical(), self.profile.metres_per_unit)
+
+    def retarget(
+        self, to: TargetRig | str | Path | Motion | Skeleton, target_map: dict | str | Path | None = None
+    ) -> Take:
+        """This clip played by another humanoid rig, on that rig's skeleton, axes and units: `to` is a
+        built-in rig's name (mixamo, unreal, smpl), a BVH of the rig (its first frame is the pose it is
+        aligned on), or a `TargetRig` (made once, it prepares once for many takes); `target_map` overrides
+        the rig's humanoid map (role: joint)."""
+        if isinstance(to, TargetRig):
+            if target_map is not None:
+                raise WalkdiffError("retarget: give target_map to the TargetRig, not beside it")
+            rig = to
+        else:
+            rig = TargetRig(to, target_map)
+        result = rig.play(self.motion, self.profile)
+        return Take(result.motion, rig.retargeter(self.motion).target_profile)
 
     def __repr__(self) -> str:
         return f"Take({self.num_frames} frames at {self.fps:g} fps, {self.skeleton.num_joints} joints)"

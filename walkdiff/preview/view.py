@@ -19,6 +19,8 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.conversion import file_profile
 from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.scene import limb_sides
 
 CENTRE = (60, 60, 60)
@@ -63,17 +65,27 @@ class ViewedClip:
         return float(pose[0, 0]), float(pose[:, 1].max() + 0.2), float(pose[0, 2])
 
 
-def load_clip(path: str | Path, profile: str | None = None) -> ViewedClip:
+def load_clips(
+    path: str | Path, profile: str | None = None, rig: TargetRig | None = None
+) -> list[ViewedClip]:
+    """A file's clip, and with `rig` the same clip played by that rig beside it."""
     path = Path(path)
     motion = read_bvh(path)
-    found = file_profile(motion, profile, path)
-    canonical = found.to_canonical(motion)
-    world = motion_world_positions(canonical) * found.metres_per_unit
+    take = Take(motion, file_profile(motion, profile, path))
+    clips = [viewed(path.stem, take)]
+    if rig is not None:
+        clips.append(viewed(f"{path.stem} on {rig.named}", take.retarget(rig)))
+    return clips
+
+
+def viewed(name: str, take: Take) -> ViewedClip:
+    canonical = take.canonical()
+    world = motion_world_positions(canonical) * take.metres_per_unit
     parents = canonical.skeleton.parents
     sides = [side or CENTRE for side in limb_sides(canonical.skeleton.names)]
     joints = np.flatnonzero(parents >= 0)
     colors = np.array([[sides[j], sides[j]] for j in joints], dtype=np.uint8).reshape(-1, 2, 3)
-    return ViewedClip(path.stem, world, parents, colors, canonical.fps)
+    return ViewedClip(name, world, parents, colors, canonical.fps)
 
 
 def lay_out(clips: list[ViewedClip]) -> tuple[np.ndarray, float]:
@@ -118,13 +130,22 @@ def skeletons_shown(left: int, right: int) -> bool:
     return left + right > 400 and min(left, right) > 50
 
 
-def view(paths: list[str], host: str = "127.0.0.1", port: int = 8080, profile: str | None = None) -> None:
-    """Serve the page until interrupted (Ctrl-C). Port 0 takes a free port; the address is printed."""
+def view(
+    paths: list[str],
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    profile: str | None = None,
+    to: str | None = None,
+    to_map: str | None = None,
+) -> None:
+    """Serve the page until interrupted (Ctrl-C). Port 0 takes a free port; the address is printed. `to`:
+    each clip is shown beside itself played by that rig (`TargetRig`)."""
     import viser
 
     if not paths:
         raise WalkdiffError("expected one or more BVH files to view")
-    clips = [load_clip(p, profile) for p in paths]
+    rig = None if to is None else TargetRig(to, to_map)
+    clips = [clip for p in paths for clip in load_clips(p, profile, rig)]
     centre, distance = lay_out(clips)
     try:
         server = viser.ViserServer(host=host, port=port, label="walkdiff view", verbose=False)

@@ -20,35 +20,33 @@ from walkdiff.common.files import check_free, output_folder, output_set, write_j
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.skeleton import Motion
+from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 from walkdiff.styled.generation import Sampling, noised_steps
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
 
 
 def _write_clip(
-    model,
-    path: Path,
-    motion: Motion,
-    title: str,
-    cap: PreviewCap | None,
-    others: tuple[tuple[Motion, str], ...] = (),
+    path: Path, take: Take, title: str, cap: PreviewCap | None, others: tuple[tuple[Take, str], ...] = ()
 ) -> None:
-    """A canonical clip as BVH on the training files' skeleton; the GIF and MP4 previews (unless `cap` is
-    None) show the canonical (Y-up) clip's first seconds, only whose joint positions are computed."""
-    write_bvh(path, model.to_file(motion))
+    """A clip as BVH on its skeleton (the training files' or the --to rig's); the GIF and MP4 previews
+    (unless `cap` is None) show the clips' canonical (Y-up) form, first seconds only."""
+    write_bvh(path, take.motion)
     if cap is not None:
-        clips = [*others, (motion, title)]
-        shown = cap.frames(max(m.num_frames for m, _ in clips), motion.fps, len(clips))
+        clips = [(t.canonical(), name) for t, name in (*others, (take, title))]
+        shown = cap.frames(max(m.num_frames for m, _ in clips), take.fps, len(clips))
+        skeleton = clips[-1][0].skeleton  # canonical: without the static joints above the body
         render_gif(
             path.with_suffix(".gif"),
             [motion_world_positions(m.slice(0, shown)) for m, _ in clips],
-            motion.skeleton.parents,
-            motion.fps,
-            names=motion.skeleton.names,
+            skeleton.parents,
+            take.fps,
+            names=skeleton.names,
             titles=[t for _, t in clips],
             cap=cap,
             video=True,
-            marks=Marks.of(model.profile),
+            marks=Marks.of(take.profile),
         )
 
 
@@ -72,10 +70,13 @@ def sample(
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
+    to: str | None = None,
+    to_map: str | None = None,
 ) -> dict:
     """`walkdiff sample`: `num` clips as BVH (+ GIF previews of their first `preview_seconds`) and
-    `manifest.json` in `out`; returns the manifest."""
+    `manifest.json` in `out`; returns the manifest. `to`: a rig to play them on (`TargetRig`)."""
     check_sample_size(num, frames)
+    rig = None if to is None else TargetRig(to, to_map)
     sampling = Sampling(sampler, steps, eta, guidance)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
@@ -93,7 +94,7 @@ def sample(
     generated = time.perf_counter() - started
     with output_set(out):
         for path, clip in zip(bvh, clips, strict=True):
-            _write_clip(model, path, clip, f"{request.label} {content}", cap)
+            _write_clip(path, generator.take(clip, rig), f"{request.label} {content}", cap)
         manifest = {
             "command": "sample",
             "checkpoint": str(ckpt),
@@ -111,6 +112,7 @@ def sample(
                 "distilled_jumps": model.jumps(sampler, steps, eta) is not None,
             },
             "seed": seed,
+            "retarget": None if rig is None else rig.record(),
             "files": [p.name for p in bvh],
             "preview": None if cap is None else cap.describe(frames, model.spec["fps"]),
             "timing": {
@@ -144,9 +146,13 @@ def transfer(
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
+    to: str | None = None,
+    to_map: str | None = None,
 ) -> dict:
     """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source (of their first
-    `preview_seconds`) and a JSON report."""
+    `preview_seconds`) and a JSON report. `to`: a rig to play the result on (the preview shows the
+    source on it too)."""
+    rig = None if to is None else TargetRig(to, to_map)
     sampling = Sampling(sampler, steps, eta, guidance)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
@@ -168,7 +174,8 @@ def transfer(
     result = generator.restyled(request, motion, strength, keep_trajectory, seed, ground, fix_feet)
     elapsed = time.perf_counter() - started
     with output_set(out):
-        _write_clip(model, target, result, request.label, cap, others=((motion, "source"),))
+        source = generator.take(motion, rig)
+        _write_clip(target, generator.take(result, rig), request.label, cap, others=((source, "source"),))
         report = {
             "command": "transfer",
             "checkpoint": str(ckpt),
@@ -187,6 +194,7 @@ def transfer(
                 "fix_feet": fix_feet,
             },
             "seed": seed,
+            "retarget": None if rig is None else rig.record(),
             "file": target.name,
             "preview": None if cap is None else cap.describe(motion.num_frames, model.spec["fps"], panels=2),
             "root_path_error": root_path_error(motion, result),

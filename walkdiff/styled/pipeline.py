@@ -24,6 +24,7 @@ from walkdiff.motion.representation import FeatureLayout, decode, encode, start_
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 from walkdiff.styled.generation import (
     Sampling,
     generate_long,
@@ -117,13 +118,16 @@ class StyledGenerator(Pipeline):
         blend: int | None = None,
         ground: bool = True,
         fix_feet: bool = False,
+        to: TargetRig | str | os.PathLike | None = None,
     ) -> list[Take]:
         """`num` clips of `frames` frames in `style` (a name, or a mix such as 'angry:0.7,old:0.3'), drawn
-        together as `walkdiff sample` draws them: the same seed and settings give the same clips."""
+        together as `walkdiff sample` draws them: the same seed and settings give the same clips. `to`: a
+        rig to play them on (`Take.retarget`)."""
         check_sample_size(num, frames)
         request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
+        rig = TargetRig.of(to)  # a wrong rig is said before any sampling
         clips = self.generate(request, num, frames, seed, ground, fix_feet)
-        return [self.take(clip) for clip in clips]
+        return [self.take(clip, rig) for clip in clips]
 
     def transfer(
         self,
@@ -141,10 +145,12 @@ class StyledGenerator(Pipeline):
         blend: int | None = None,
         ground: bool = True,
         fix_feet: bool = False,
+        to: TargetRig | str | os.PathLike | None = None,
     ) -> Take:
         """A clip (a Motion, a Take or a BVH file, on the training files' skeleton, any frame rate)
         restyled as `walkdiff transfer` does: noised to `strength` of the schedule and denoised in
-        `style`; `keep_trajectory` keeps its root path exactly."""
+        `style`; `keep_trajectory` keeps its root path exactly; `to`: a rig to play it on."""
+        rig = TargetRig.of(to)
         request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
         noised_steps(self.model, strength, request.sampling)  # a bad strength fails before any warning
         source = self.source(motion)
@@ -152,7 +158,7 @@ class StyledGenerator(Pipeline):
         if short is not None:
             warnings.warn(short, stacklevel=2)
         result = self.restyled(request, source, strength, keep_trajectory, seed, ground, fix_feet)
-        return self.take(result)
+        return self.take(result, rig)
 
     def request(
         self, style: str, content: str, sampling: Sampling, overlap: int | None, blend: int | None
