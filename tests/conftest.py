@@ -41,8 +41,9 @@ def no_leaked_tracking_uri(monkeypatch):
 
 @pytest.fixture(scope="session")
 def xia_tiny(xia_dir, tmp_path_factory) -> dict[str, Path]:
-    """A tiny generator (two epochs) and a tiny path walker (four steps) fitted on twelve real Xia walks: a
-    humanoid with arms, which the synthetic skeleton has not. Good for running commands, not for quality."""
+    """A tiny generator (two epochs), the same with a style encoder, and a tiny path walker (four steps)
+    fitted on twelve real Xia walks (neutral and old): a humanoid with arms, which the synthetic skeleton
+    has not. Good for running commands, not for quality."""
     import tiny
 
     root = tmp_path_factory.mktemp("xia_tiny")
@@ -51,7 +52,9 @@ def xia_tiny(xia_dir, tmp_path_factory) -> dict[str, Path]:
         for content in (1, 2, 3, 5, 6, 7):
             name = f"{style}_{content:02d}_000.bvh"
             (root / "xia" / name).symlink_to(xia_dir / name)
-    return {"generator": tiny.generator(root, epochs=2, timesteps=20), "walker": tiny.walker(root)[1]}
+    models = {"generator": tiny.generator(root, epochs=2, timesteps=20), "walker": tiny.walker(root)[1]}
+    models["style_codes"] = tiny.generator(root, epochs=2, timesteps=20, style_code_dim=16, name="codes")
+    return models
 
 
 @pytest.fixture

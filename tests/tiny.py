@@ -30,7 +30,7 @@ WALKER = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_
 GESTURES = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=10)
 
 
-def generator(root: Path, epochs: int = 60, **options) -> Path:
+def generator(root: Path, epochs: int = 60, name: str = "tiny", **options) -> Path:
     """A StyledMotionDiffusion fitted for `epochs` on the Xia-named clips in root/xia; its checkpoint."""
     dm = MotionDataModule(
         root=str(root), cache_dir=str(root / "cache"), batch_size=16, window=24, preprocess_workers=1
@@ -39,7 +39,7 @@ def generator(root: Path, epochs: int = 60, **options) -> Path:
     model = StyledMotionDiffusion(dm.spec, **(GENERATOR | options))
     trainer = synthetic.quiet_trainer(max_epochs=epochs, limit_val_batches=0)
     trainer.fit(model, dm)
-    path = root / "tiny.ckpt"
+    path = root / f"{name}.ckpt"
     trainer.save_checkpoint(path)
     return path
 

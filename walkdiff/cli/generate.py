@@ -24,6 +24,10 @@ def add_parsers(sub) -> None:
     p.add_argument(
         "--frames", type=count(1), default=300, help="frames per clip at the model's fps (default 300)"
     )
+    p.add_argument(
+        "--transition", type=number(0), default=1.0,
+        help="with a --style timeline (neutral@0,old@4s): seconds each change is ramped over (default 1)",
+    )  # fmt: skip
     p.set_defaults(run=run_generation)
 
     p = sub.add_parser("transfer", help="restyle a BVH clip (noise to strength*T, denoise in the new style)")
@@ -40,7 +44,15 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     """What `sample` and `transfer` share: the model, the style, the sampler and how windows are joined."""
     p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--style", required=True, help="a style, or a mix: angry:0.7,old:0.3")
+    p.add_argument(
+        "--style", default=None,
+        help="a style, a mix (angry:0.7,old:0.3), or with sample a timeline: neutral@0,old@4s,angry+old@8s",
+    )  # fmt: skip
+    p.add_argument(
+        "--style-clip", dest="style_clips", default=None, metavar="FILE[:WEIGHT],...",
+        help="take the style from example BVH clips on the model's skeleton (a model with a style encoder), "
+        "alone or mixed with --style (which then weighs 1)",
+    )  # fmt: skip
     p.add_argument("--content", default="walk", help="content group (default walk)")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)

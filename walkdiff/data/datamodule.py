@@ -160,6 +160,7 @@ class MotionDataModule(WindowLoaders):
         cache_dir: str = ".cache/walkdiff",
         on_error: str = "fail",
         preprocess_workers: int = 2,
+        leave_out_styles: list[str] | None = None,
     ):
         super().__init__()
         self.save_hyperparameters(logger=False)  # the run logs its config (run_params)
@@ -173,6 +174,7 @@ class MotionDataModule(WindowLoaders):
         self.clips = self.source.list_clips()
         self.selection = ContentSelection.parse(contents, self.source.groups)
         self.splits = self.source.split_clips(self.clips, self.selection)
+        self._leave_out(leave_out_styles or [])
         # What mirrored copies are labelled: checked now, before any preprocessing.
         styles, groups = self.source.styles, self.source.groups
         self.mirror_map = (
@@ -184,6 +186,17 @@ class MotionDataModule(WindowLoaders):
         self.processed: ProcessedClips | None = None
         self.normalizer: Normalizer | None = None
         self.datasets: dict[str, WindowDataset] = {}
+
+    def _leave_out(self, styles: list[str]) -> None:
+        """Styles kept out of training and validation (to test styles never seen, from example clips):
+        their clips stay in the test split, their labels in the vocabulary, so evaluators still name them."""
+        unknown = [s for s in styles if s not in self.source.styles]
+        if unknown:
+            valid = ", ".join(self.source.styles)
+            raise WalkdiffError(f"data.leave_out_styles: unknown style {', '.join(unknown)}; valid: {valid}")
+        left = {self.source.styles.index(s) for s in styles}
+        for split in ("train", "val"):
+            self.splits[split] = [c for c in self.splits[split] if c.style not in left]
 
     @property
     def profile(self) -> SkeletonProfile:

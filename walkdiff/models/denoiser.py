@@ -7,6 +7,8 @@ import math
 import torch
 from torch import nn
 
+from walkdiff.models.style_encoder import CodeStyle, StyleEncoder
+
 
 def sinusoidal(positions: torch.Tensor, dim: int) -> torch.Tensor:
     """Transformer-style sinusoidal embedding of (fractional) positions or diffusion steps."""
@@ -67,12 +69,17 @@ class MotionDenoiser(nn.Module):
         ff_mult: int = 4,
         dropout: float = 0.1,
         jump_conditioning: bool = False,
+        code_dim: int = 0,
     ):
         super().__init__()
         self.d_model = d_model
         self.input = nn.Linear(feature_dim, d_model)
         self.step_mlp = nn.Sequential(nn.Linear(d_model, d_model), nn.SiLU(), nn.Linear(d_model, d_model))
-        self.style = LabelEmbedding(num_styles, d_model)
+        # With code_dim > 0 style comes as codes of example motion (models/style_encoder.py), labels too.
+        self.style = (
+            CodeStyle(num_styles, code_dim, d_model) if code_dim else LabelEmbedding(num_styles, d_model)
+        )
+        self.style_encoder = StyleEncoder(feature_dim, code_dim) if code_dim else None
         self.content = LabelEmbedding(num_contents, d_model)
         layer = nn.TransformerEncoderLayer(
             d_model, heads, ff_mult * d_model, dropout, activation="gelu", batch_first=True, norm_first=True

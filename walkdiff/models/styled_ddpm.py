@@ -63,6 +63,7 @@ from walkdiff.diffusion import (
 from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
+from walkdiff.models.style_encoder import reference_windows
 from walkdiff.motion.footfix import ground, planted_heights
 from walkdiff.motion.representation import decode_root, features_to_positions
 from walkdiff.spec import DataSpec
@@ -112,6 +113,9 @@ class StyledMotionDiffusion(MotionModule):
         grad_clip: float = 1.0,
         ema_decay: float = 0.999,
         distilled_steps: list[int] | int = 0,  # set by `walkdiff distill`: DDIM over these step counts jumps
+        style_code_dim: int = 0,  # > 0: style also from example clips, codes of this size (style_encoder.py)
+        lambda_style_code: float = 0.1,
+        style_crop_min: float = 0.5,
     ):
         super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
@@ -123,7 +127,7 @@ class StyledMotionDiffusion(MotionModule):
 
         def denoiser(dropout: float, jump_conditioning: bool) -> MotionDenoiser:
             return MotionDenoiser(spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4,
-                                  dropout, jump_conditioning)  # fmt: skip
+                                  dropout, jump_conditioning, style_code_dim)  # fmt: skip
 
         self.denoiser = denoiser(dropout, jump_conditioning=bool(self.distilled_steps))
         self.discriminator = (
@@ -225,13 +229,19 @@ class StyledMotionDiffusion(MotionModule):
         return [self.skeleton.index(name) for name in self.contact_spec.joints]
 
     def denoise(
-        self, batch: dict, net=None, cond_drop: float = 0.0, generator: torch.Generator | None = None
+        self,
+        batch: dict,
+        net=None,
+        cond_drop: float = 0.0,
+        generator: torch.Generator | None = None,
+        style: torch.Tensor | None = None,
     ):
-        """Noise x0 to a random level and run the network: (output, its target, x0_hat, t)."""
+        """Noise x0 to a random level and run the network: (output, its target, x0_hat, t). `style`: codes
+        to condition on instead of the batch's labels."""
         net = net or self.denoiser
         x0 = batch["features"]
         t, noise, x_t = self._noisy(x0, generator)
-        style = net.style.drop(batch["style"], cond_drop)
+        style = net.style.drop(batch["style"] if style is None else style, cond_drop)
         content = net.content.drop(batch["content"], cond_drop)
         out = net(x_t, t, style, content)
         return out, self.diffusion.training_target(x0, noise, t), self.diffusion.predict_x0(out, x_t, t), t
@@ -289,6 +299,7 @@ class StyledMotionDiffusion(MotionModule):
             "foot_height": h.lambda_foot_height,
             "position": h.lambda_position,
             "adv": h.lambda_adv,
+            "style_code": h.lambda_style_code,
         }
         return sum(lambdas[k] * v for k, v in losses.items())
 
@@ -324,7 +335,11 @@ class StyledMotionDiffusion(MotionModule):
         sched_g, sched_d = (schedulers, None) if self.discriminator is None else schedulers
 
         x0 = batch["features"]
-        out, target, x0_hat, t = self.denoise(batch, cond_drop=h.cond_drop)
+        crops = codes = None
+        if self.denoiser.style_encoder is not None:  # conditioned on another clip of the same style
+            crops, _ = reference_windows(x0, batch["style"], batch["clip"], h.style_crop_min)
+            codes = self.denoiser.style_encoder(crops)
+        out, target, x0_hat, t = self.denoise(batch, cond_drop=h.cond_drop, style=codes)
 
         logs: dict[str, torch.Tensor] = {}
         if self.discriminator is not None:
@@ -339,6 +354,8 @@ class StyledMotionDiffusion(MotionModule):
 
         adversarial = self.discriminator is not None and self.batches_done >= h.adv_warmup_batches
         losses = self.generator_losses(batch, out, target, x0_hat, t, adversarial)
+        if codes is not None:
+            losses["style_code"] = F.cross_entropy(self.denoiser.style.logits(codes), batch["style"])
         self._check_finite(losses)
         total = self.total_loss(losses)
         opt_g.zero_grad(set_to_none=True)
@@ -347,6 +364,8 @@ class StyledMotionDiffusion(MotionModule):
         opt_g.step()
         sched_g.step()
         self.ema.update_parameters(self.denoiser)
+        if crops is not None:
+            self._update_style_codes(crops, batch["style"])
 
         # One metric per term, named `<term>/<split>` as in validation, so MLflow shows a term's train and
         # val charts side by side; per step only (an epoch mean of the same numbers would chart them twice).
@@ -357,6 +376,28 @@ class StyledMotionDiffusion(MotionModule):
             logs, prog_bar=False, on_step=True, on_epoch=False, sync_dist=True, batch_size=x0.shape[0]
         )
         self.log("loss", total.detach(), prog_bar=True, on_step=True, on_epoch=False, logger=False)
+
+    @torch.no_grad()
+    def _update_style_codes(self, crops: torch.Tensor, styles: torch.Tensor) -> None:
+        """The labels' stored codes, from the EMA encoder (what sampling uses), kept equal in the live
+        denoiser so that the EMA's averaging of buffers leaves them as they are."""
+        ema = self.ema.module
+        ema.style.update_codes(ema.style_encoder(crops), styles)
+        self.denoiser.style.codes.copy_(ema.style.codes)
+
+    @torch.no_grad()
+    def style_code(self, windows: torch.Tensor | None) -> torch.Tensor | None:
+        """One unit code (code_dim,) of normalised feature windows (N, F, D) of example motion: the
+        direction of the mean of their codes (None for None: only whether the model takes examples)."""
+        ema = self.ema.module.eval()
+        if ema.style_encoder is None:
+            raise WalkdiffError(
+                "this model takes style labels only: it was trained without a style encoder "
+                "(model.style_code_dim 0); train one with model.style_code_dim > 0 to use example clips"
+            )
+        if windows is None:
+            return None
+        return F.normalize(ema.style_encoder(windows).mean(dim=0), dim=0)
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         # Fixed noise per batch, so validation losses are comparable across epochs.

@@ -25,6 +25,7 @@ from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 from walkdiff.styled.generation import Sampling, noised_steps
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
+from walkdiff.styled.timeline import DEFAULT_TRANSITION, plot_timeline
 
 
 def _write_clip(
@@ -53,7 +54,7 @@ def _write_clip(
 def sample(
     ckpt: str | Path,
     out: str | Path,
-    style: str,
+    style: str | None = None,
     content: str = "walk",
     num: int = 8,
     frames: int = 300,
@@ -72,6 +73,8 @@ def sample(
     device: str = "cpu",
     to: str | None = None,
     to_map: str | None = None,
+    style_clips: str | None = None,
+    transition: float = DEFAULT_TRANSITION,
 ) -> dict:
     """`walkdiff sample`: `num` clips as BVH (+ GIF previews of their first `preview_seconds`) and
     `manifest.json` in `out`; returns the manifest. `to`: a rig to play them on (`TargetRig`)."""
@@ -81,13 +84,15 @@ def sample(
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     model = generator.model
-    request = generator.request(style, content, sampling, overlap, blend)
+    request = generator.request(style, content, sampling, overlap, blend, style_clips, transition)
     out = output_folder(out)
     names = [f"{request.label}_{content}_{i:03d}" for i in range(num)]
     manifest_path = out / "manifest.json"
     bvh = [out / f"{n}.bvh" for n in names]
     previews = [p.with_suffix(suffix) for p in bvh for suffix in (".gif", ".mp4")] if gif else []
-    check_free(bvh + previews + [manifest_path], overwrite)
+    timeline_png = out / f"{request.label}_{content}_timeline.png"
+    extra = [timeline_png] if request.timeline is not None else []
+    check_free(bvh + previews + extra + [manifest_path], overwrite)
 
     started = time.perf_counter()
     clips = generator.generate(request, num, frames, seed, ground, fix_feet)
@@ -95,11 +100,15 @@ def sample(
     with output_set(out):
         for path, clip in zip(bvh, clips, strict=True):
             _write_clip(path, generator.take(clip, rig), f"{request.label} {content}", cap)
+        if request.timeline is not None:
+            plot_timeline(timeline_png, request.timeline, list(generator.styles), frames / generator.fps)
         manifest = {
             "command": "sample",
             "checkpoint": str(ckpt),
             "settings": {
                 "style": style,
+                "style_clips": [e.record() for e in request.examples],
+                "timeline": None if request.timeline is None else request.timeline.record(),
                 "content": content,
                 "num": num,
                 "frames": frames,
@@ -129,7 +138,7 @@ def transfer(
     ckpt: str | Path,
     input: str | Path,
     out: str | Path,
-    style: str,
+    style: str | None = None,
     content: str = "walk",
     strength: float = 0.6,
     keep_trajectory: bool = False,
@@ -148,6 +157,7 @@ def transfer(
     device: str = "cpu",
     to: str | None = None,
     to_map: str | None = None,
+    style_clips: str | None = None,
 ) -> dict:
     """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source (of their first
     `preview_seconds`) and a JSON report. `to`: a rig to play the result on (the preview shows the
@@ -157,7 +167,7 @@ def transfer(
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     model = generator.model
-    request = generator.request(style, content, sampling, overlap, blend)
+    request = generator.request(style, content, sampling, overlap, blend, style_clips)
     noised_steps(model, strength, sampling)  # bad strength fails before any work
     input = Path(input)
     motion = generator.source(input)
@@ -182,6 +192,7 @@ def transfer(
             "input": str(input),
             "settings": {
                 "style": style,
+                "style_clips": [e.record() for e in request.examples],
                 "content": content,
                 "strength": strength,
                 "keep_trajectory": keep_trajectory,

@@ -207,9 +207,11 @@ def generate_long(
     generator: torch.Generator | None = None,
     overlap: int | None = None,
     blend: int | None = None,
+    style_at: Callable[[int, int], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Normalised features (B, frames, D) of any length from a model whose `generate` makes windows,
-    with a progress bar over windows x denoising steps."""
+    with a progress bar over windows x denoising steps. `style_at(start, stop)`: each window's style
+    (a timeline), instead of `style` for all."""
     window = model.spec["window"]
     overlap, blend = resolve_windows(window, overlap, blend)
     windows = len(window_plan(frames, window, overlap))  # a bad length fails before the bar opens
@@ -218,7 +220,7 @@ def generate_long(
 
     def denoise(start: int, stop: int, inpaint: Known | None) -> torch.Tensor:
         return model.generate(
-            style,
+            style if style_at is None else style_at(start, stop),
             content,
             stop - start,
             sampler=sampling.sampler,

@@ -34,6 +34,14 @@ from walkdiff.styled.generation import (
     resolve_windows,
     restyle,
 )
+from walkdiff.styled.style_examples import (
+    StyleExample,
+    example_windows,
+    label_code,
+    mixed_code,
+    parse_style_clips,
+)
+from walkdiff.styled.timeline import DEFAULT_TRANSITION, StyleTimeline, parse_timeline
 
 
 @dataclass(frozen=True)
@@ -47,6 +55,9 @@ class Request:
     sampling: Sampling
     overlap: int
     blend: int
+    examples: tuple[StyleExample, ...] = ()
+    timeline: StyleTimeline | None = None
+    timeline: StyleTimeline | None = None
 
 
 def check_sample_size(num: int, frames: int) -> None:
@@ -105,7 +116,7 @@ class StyledGenerator(Pipeline):
 
     def sample(
         self,
-        style: str,
+        style: str | None = None,
         content: str = "walk",
         num: int = 1,
         frames: int = 300,
@@ -119,12 +130,17 @@ class StyledGenerator(Pipeline):
         ground: bool = True,
         fix_feet: bool = False,
         to: TargetRig | str | os.PathLike | None = None,
+        style_clips=None,
+        transition: float = DEFAULT_TRANSITION,
     ) -> list[Take]:
         """`num` clips of `frames` frames in `style` (a name, or a mix such as 'angry:0.7,old:0.3'), drawn
         together as `walkdiff sample` draws them: the same seed and settings give the same clips. `to`: a
-        rig to play them on (`Take.retarget`)."""
+        rig to play them on (`Take.retarget`). `style_clips`: example clips whose style to take, alone or
+        mixed with `style` ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip, weight) pairs). A
+        timeline `style` ('neutral@0,old@4s') changes style over time, ramped over `transition` seconds."""
         check_sample_size(num, frames)
-        request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
+        sampling = Sampling(sampler, steps, eta, guidance)
+        request = self.request(style, content, sampling, overlap, blend, style_clips, transition)
         rig = TargetRig.of(to)  # a wrong rig is said before any sampling
         clips = self.generate(request, num, frames, seed, ground, fix_feet)
         return [self.take(clip, rig) for clip in clips]
@@ -132,7 +148,7 @@ class StyledGenerator(Pipeline):
     def transfer(
         self,
         motion: Motion | Take | str | os.PathLike,
-        style: str,
+        style: str | None = None,
         content: str = "walk",
         strength: float = 0.6,
         keep_trajectory: bool = False,
@@ -146,12 +162,16 @@ class StyledGenerator(Pipeline):
         ground: bool = True,
         fix_feet: bool = False,
         to: TargetRig | str | os.PathLike | None = None,
+        style_clips=None,
     ) -> Take:
         """A clip (a Motion, a Take or a BVH file, on the training files' skeleton, any frame rate)
         restyled as `walkdiff transfer` does: noised to `strength` of the schedule and denoised in
         `style`; `keep_trajectory` keeps its root path exactly; `to`: a rig to play it on."""
         rig = TargetRig.of(to)
-        request = self.request(style, content, Sampling(sampler, steps, eta, guidance), overlap, blend)
+        sampling = Sampling(sampler, steps, eta, guidance)
+        request = self.request(style, content, sampling, overlap, blend, style_clips)
+        if request.timeline is not None:
+            raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is for sample; transfer takes one style")
         noised_steps(self.model, strength, request.sampling)  # a bad strength fails before any warning
         source = self.source(motion)
         short = self.window_note(source, motion if isinstance(motion, str | os.PathLike) else "the clip")
@@ -161,13 +181,67 @@ class StyledGenerator(Pipeline):
         return self.take(result, rig)
 
     def request(
-        self, style: str, content: str, sampling: Sampling, overlap: int | None, blend: int | None
+        self,
+        style: str | None,
+        content: str,
+        sampling: Sampling,
+        overlap: int | None,
+        blend: int | None,
+        style_clips=None,
+        transition: float = DEFAULT_TRANSITION,
     ) -> Request:
         """The labels and windows of a sample or transfer, or a WalkdiffError naming what is wrong."""
-        style_label, label = parse_style(self.model, style)
+        if style is None and not style_clips:
+            raise WalkdiffError("no style given: pass --style NAME[,...], --style-clip FILE[,...] or both")
         content_id = self.model.label_ids([content], "content")[0]
         overlap, blend = resolve_windows(self.model.spec["window"], overlap, blend)
-        return Request(style_label, label, content_id, sampling, overlap, blend)
+        examples: tuple[StyleExample, ...] = ()
+        timeline = None if style is None else parse_timeline(self.model, style, transition)
+        if timeline is not None:
+            if style_clips:
+                raise WalkdiffError(
+                    "--style-clip: not in a timeline; give the timeline's keys as --style names"
+                )
+            for weights in timeline.weights:
+                self.check_trained(weights)
+            return Request(
+                timeline.at(0.0), timeline.label, content_id, sampling, overlap, blend, (), timeline
+            )
+        if style is not None:
+            style_label, label = parse_style(self.model, style)
+            self.check_trained(style_label)
+        if style_clips:
+            self.model.style_code(None)  # a model without a style encoder says so before any clip is read
+            weighted, examples = self.examples(style_clips)
+            if style is not None:
+                weighted.insert(0, (label_code(self.model, style_label), 1.0))
+            style_label = mixed_code(self.model, weighted)
+            names = [e.source for e in examples]
+            label = "+".join(([label] if style is not None else []) + [f"clip-{Path(n).stem}" for n in names])
+        return Request(style_label, label, content_id, sampling, overlap, blend, examples)
+
+    def examples(self, style_clips) -> tuple[list[tuple[torch.Tensor, float]], tuple[StyleExample, ...]]:
+        """Each example clip's code and weight, and what the manifest records of it."""
+        weighted, examples = [], []
+        for clip, weight in parse_style_clips(style_clips):
+            where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
+            code = self.model.style_code(example_windows(self.model, self.source(clip), where))
+            weighted.append((code, weight))
+            examples.append(StyleExample(where, weight, tuple(code.tolist())))
+        return weighted, tuple(examples)
+
+    def check_trained(self, style: torch.Tensor) -> None:
+        """A style with no stored code (left out of training, data.leave_out_styles) is refused by name."""
+        codes = getattr(self.model.ema.module.style, "codes", None)
+        if codes is None:
+            return
+        used = [style.item()] if not style.is_floating_point() else style.nonzero()[:, 0].tolist()
+        missing = [self.styles[i] for i in used if not codes[i].any()]
+        if missing:
+            raise WalkdiffError(
+                f"--style {', '.join(missing)}: this model has no code for it (no training clip of that "
+                "style, or data.leave_out_styles left it out); give an example clip: --style-clip FILE"
+            )
 
     def source(self, motion: Motion | Take | str | os.PathLike) -> Motion:
         """A clip to restyle as the model takes it: checked to be on its skeleton, canonical, at its fps."""
@@ -213,9 +287,14 @@ class StyledGenerator(Pipeline):
         """`num` canonical clips of `frames` frames, drawn as one batch from `seed`."""
         model = self.model
         generator = torch.Generator(device=model.device).manual_seed(seed)
+        style_at = None
+        if request.timeline is not None:
+            request.timeline.check_length(frames / self.fps)
+            timeline, fps = request.timeline, self.fps
+            style_at = lambda start, stop: _batch(timeline.at((start + stop - 1) / 2 / fps), num)  # noqa: E731
         x = generate_long(
             model, _batch(request.style, num), _batch(request.content, num), frames, request.sampling,
-            generator, request.overlap, request.blend,
+            generator, request.overlap, request.blend, style_at,
         )  # fmt: skip
         clips = [self._decoded(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
         check_finite(clips, request.sampling)

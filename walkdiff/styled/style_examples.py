@@ -1,0 +1,89 @@
+"""Style from example clips (`--style-clip FILE[:WEIGHT],...`, `style_clips=`), alone or mixed with labels.
+
+A model trained with a style encoder (`model.style_code_dim > 0`, models/style_encoder.py) turns each
+clip into a unit code: the clip is read as `transfer` reads its input (the model's skeleton, any frame
+rate), cut into windows half a window apart, and the direction of the mean of their codes is its code.
+A request's style is then the direction of the weighted sum of the labels' stored codes (the `--style`
+part counts as weight 1) and the clips' codes (weight 1 each unless given).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.motion.representation import encode
+from walkdiff.motion.skeleton import Motion
+
+
+@dataclass(frozen=True)
+class StyleExample:
+    """One example clip: where it came from, its weight, and its code once encoded."""
+
+    source: str
+    weight: float
+    code: tuple[float, ...] = ()
+
+    def record(self) -> dict:
+        return {"clip": self.source, "weight": self.weight, "code": [round(c, 5) for c in self.code]}
+
+
+def parse_style_clips(text: str | list) -> list[tuple[str | Motion, float]]:
+    """'a.bvh:0.7,b.bvh' (or a list of paths, Motions, or (clip, weight) pairs) -> [(clip, weight)]."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    out = []
+    for item in items:
+        if isinstance(item, tuple):
+            clip, weight = item
+        elif isinstance(item, str | os.PathLike):
+            clip, weight = _path_and_weight(str(item).strip())
+        else:
+            clip, weight = item, 1.0
+        if not (np.isfinite(weight) and weight > 0):
+            raise WalkdiffError(f"--style-clip: expected FILE or FILE:WEIGHT with weights > 0, got {item!r}")
+        out.append((clip, float(weight)))
+    if not out:
+        raise WalkdiffError("--style-clip: expected one or more BVH files (FILE[:WEIGHT],...)")
+    return out
+
+
+def _path_and_weight(item: str) -> tuple[str, float]:
+    path, _, weight = item.rpartition(":")
+    if path and not Path(item).exists():
+        try:
+            return path, float(weight)
+        except ValueError:
+            pass
+    return item, 1.0
+
+
+def example_windows(model, motion: Motion, where: str) -> torch.Tensor:
+    """Normalised windows (N, window, D) of a canonical clip at the model's fps, half a window apart."""
+    window = model.spec["window"]
+    if motion.num_frames < window:
+        fps = model.spec["fps"]
+        raise WalkdiffError(
+            f"--style-clip: {motion.num_frames} frames at the model's {fps:g} fps; a style example needs at "
+            f"least one {window}-frame window ({window / fps:.2f} s)",
+            path=where,
+        )
+    features = model.normalizer.normalize(torch.from_numpy(encode(motion, model.profile)))
+    starts = range(0, motion.num_frames - window + 1, max(1, window // 2))
+    return torch.stack([features[s : s + window] for s in starts]).float().to(model.device)
+
+
+def mixed_code(model, weighted: list[tuple[torch.Tensor, float]]) -> torch.Tensor:
+    """The direction of the weighted sum of codes (code_dim,)."""
+    total = sum(w * code for code, w in weighted)
+    return F.normalize(total, dim=0)
+
+
+def label_code(model, style: torch.Tensor) -> torch.Tensor:
+    """The stored code (code_dim,) of a style id or mixing weights (what sampling by label uses)."""
+    return model.ema.module.style.as_codes(style[None])[0]
