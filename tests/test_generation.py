@@ -18,6 +18,7 @@ from PIL import Image
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import GaussianDiffusion, log_snr_timesteps
+from walkdiff.models.style_labels import parse_style
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.representation import features_to_positions
 from walkdiff.styled.generation import (
@@ -26,7 +27,6 @@ from walkdiff.styled.generation import (
     joint_speeds,
     load_generator,
     noised_steps,
-    parse_style,
     resolve_windows,
     restyle,
     seam_steps,

@@ -16,13 +16,13 @@ import walkdiff
 from walkdiff.cli.main import main
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.models.style_encoder import CodeStyle, StyleEncoder, reference_windows
+from walkdiff.models.style_labels import parse_timeline
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.rotations import euler_to_matrix
 from walkdiff.motion.skeleton import Motion
 from walkdiff.styled import commands
 from walkdiff.styled.style_examples import example_windows
-from walkdiff.styled.timeline import parse_timeline
 
 FAST = dict(sampler="ddim", steps=2)
 
@@ -197,3 +197,23 @@ def test_each_window_is_denoised_under_the_timeline_at_its_middle(xia_tiny, tmp_
         generator.sample("neutral@0,old@3s", **options)
     with pytest.raises(walkdiff.WalkdiffError, match="a timeline .* is for sample"):
         generator.transfer(walkdiff.read_bvh(out / manifest["files"][0]), "neutral@0,old@1s", **FAST)
+
+
+def test_the_path_walker_follows_a_timeline_frame_by_frame(xia_tiny, tmp_path, capsys):
+    follower = walkdiff.load(xia_tiny["walker"])
+    points, options = [[0, 0], [3, 0]], dict(speed=1.2, seed=2, sampler="ddim", steps=2)
+    plain = follower.follow(points, "neutral", **options).positions
+    timed = follower.follow(points, "neutral@0,old@1s", transition=0.5, **options).positions
+    assert timed.shape == plain.shape
+    np.testing.assert_allclose(timed[:22], plain[:22], atol=1e-5)  # before 0.75 s: neutral alone
+    assert np.abs(timed[40:] - plain[40:]).max() > 1e-3
+    path = tmp_path / "line.json"
+    path.write_text(json.dumps({"points": points, "speed": 1.2}))
+    argv = ["walk", "--ckpt", str(xia_tiny["walker"]), "--style", "neutral@0,old@1s", "--path", str(path),
+            "--out", str(tmp_path / "out"), "--no-gif", "--sampler", "ddim", "--steps", "2"]  # fmt: skip
+    assert main(argv) == 0
+    manifest = json.loads(capsys.readouterr().out)
+    assert manifest["timeline"]["keys"][1]["style"] == "old"
+    assert (tmp_path / "out" / "timeline-neutral-old_line_timeline.png").exists()
+    assert main(argv[:-5] + ["--stream", "--path", "-"]) == 1
+    assert "a timeline (STYLE@SECONDS) is not for --stream" in capsys.readouterr().err

@@ -21,6 +21,7 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_path
@@ -46,18 +47,32 @@ def walk_paths(
     frames: int | None = None,
     sampler: SamplerChoice | None = None,
 ) -> tuple[np.ndarray, tuple[np.ndarray, float], np.ndarray]:
-    """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id, each frame
-    drawn by `sampler` (default DDPM); refused before any work where the path is too long for memory,
-    with a progress bar over the frames."""
-    style = torch.tensor(styles)
-    speeds = model.style_speed[style].cpu() if speed is None else torch.full((len(styles),), float(speed))
+    """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id (or one walk
+    of a `StyleTimeline`), each frame drawn by `sampler` (default DDPM); refused before any work where
+    the path is too long for memory, with a progress bar over the frames."""
+    style_at, timeline = None, styles if isinstance(styles, StyleTimeline) else None
+    style = torch.tensor(styles) if timeline is None else timeline.at(0.0)[None]
+    known = model.style_speed.cpu()
+    if timeline is None:
+        speeds = known[style] if speed is None else torch.full((len(styles),), float(speed))
+    else:  # each frame's style, and its speed: the given one or the styles' own, mixed as they are
+        fps, keys = model.spec["fps"], timeline.weights @ known
+        speeds = keys.mean()[None] if speed is None else torch.full((1,), float(speed))
+        speeds = speeds if speed is not None or (keys > 0).all() else keys.min()[None]
+
+        def style_at(f: int) -> tuple[torch.Tensor, torch.Tensor]:
+            weights = timeline.at(f / fps)
+            return weights[None], speeds if speed is not None else (weights @ known)[None]
+
     if (speeds <= 0).any():
         raise WalkdiffError("the checkpoint has no walking speed for a style; give --speed")
     frames = frames or max(frames_for(path, float(s), model.spec["fps"]) for s in speeds)
-    check_frames("--path", frames, WALK_BYTES_PER_FRAME, len(styles))
+    check_frames("--path", frames, WALK_BYTES_PER_FRAME, len(style))
     generator = torch.Generator(device=model.device).manual_seed(seed)
     with progress(desc="walking", unit="frame") as bar:
-        raw, start = model.generate(path, style, speeds, frames, generator, step_hook(bar), sampler)
+        raw, start = model.generate(
+            path, style, speeds, frames, generator, step_hook(bar), sampler, style_at=style_at
+        )
     return raw, start, speeds.numpy()
 
 
@@ -98,34 +113,48 @@ class PathFollower(Pipeline):
         steps: int | None = None,
         eta: float = 0.0,
         to: TargetRig | str | os.PathLike | None = None,
+        transition: float = DEFAULT_TRANSITION,
     ) -> Take:
         """`style` walking along `path` ((x, z) points or a Polyline in metres, or a path file) at `speed`
-        m/s: by default the file's, else the style's own pace in the training data. `to`: a rig to play
-        it on (its root path is then the walk's scaled by the legs' length ratio)."""
+        m/s: by default the file's, else the style's own pace in the training data. `style` may be a
+        timeline ('neutral@0,old@4s', ramped over `transition` s). `to`: a rig to play it on (its root
+        path is then the walk's scaled by the legs' length ratio)."""
         choice = SamplerChoice(sampler, steps, eta)
         rig = TargetRig.of(to)
         metres, file_speed = path_in_metres(path)
-        motion, _ = self.walk_along(metres, style, file_speed if speed is None else speed, seed, choice)
+        speed = file_speed if speed is None else speed
+        motion, _ = self.walk_along(metres, style, speed, seed, choice, transition)
         return self.take(motion, rig)
 
     def check(self, style: str, speed: float | None) -> int:
-        """The style's index, once the style and the speed (m/s, None: the style's own) are valid."""
-        if style not in self.styles:
-            raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(self.styles)}")
+        """The style's index (-1 for a timeline), once the style and the speed (m/s, None: the style's
+        own) are valid."""
         if speed is not None and not 0 < speed < math.inf:
             raise WalkdiffError(f"--speed must be a positive number of metres per second, got {speed}")
+        if parse_timeline(self.model, style) is not None:
+            return -1
+        if style not in self.styles:
+            raise WalkdiffError(f"unknown style {style!r}; valid: {', '.join(self.styles)}")
         return self.styles.index(style)
 
     def walk_along(
-        self, metres: Polyline, style: str, speed: float | None, seed: int, choice: SamplerChoice
+        self,
+        metres: Polyline,
+        style: str,
+        speed: float | None,
+        seed: int,
+        choice: SamplerChoice,
+        transition: float = DEFAULT_TRANSITION,
     ) -> tuple[Motion, float]:
         """The canonical walk of `style` along a path in metres at `speed` m/s (None: the style's own),
         and the speed it walked at in m/s."""
-        index = self.check(style, speed)
+        timeline = parse_timeline(self.model, style, transition)
+        index = self.check(style, speed) if timeline is None else timeline
         unit = self.model.profile.metres_per_unit
         polyline = Polyline.of(metres.points / unit)  # the model walks in its data's units
         speed = None if speed is None else speed / unit
-        raw, start, speeds = walk_paths(self.model, polyline, [index], speed, seed, sampler=choice)
+        styles = [index] if timeline is None else timeline
+        raw, start, speeds = walk_paths(self.model, polyline, styles, speed, seed, sampler=choice)
         return to_motion(self.model, raw[0], start), float(speeds[0]) * unit
 
 
@@ -211,33 +240,42 @@ def walk(
     eta: float = 0.0,
     to: str | None = None,
     to_map: str | None = None,
+    transition: float = DEFAULT_TRANSITION,
 ) -> dict:
     """`walkdiff walk`: a BVH (+ a GIF of its first `preview_seconds` and a top-down plot) of the style
     walking along the path file, each frame drawn by the sampler (`SamplerChoice`); `to`: a rig to play
-    it on (`TargetRig`)."""
+    it on (`TargetRig`). A timeline `style` also writes its weights' plot."""
     choice = SamplerChoice(sampler, steps, eta)
     rig = None if to is None else TargetRig(to, to_map)
     cap = PreviewCap(preview_seconds) if gif else None
     follower = PathFollower.load(ckpt)
     model = follower.model
     follower.check(style, speed)  # before the path file is read
+    timeline = parse_timeline(model, style, transition)
+    name = style if timeline is None else timeline.label
     metres, file_speed = read_path(path)
     unit = model.profile.metres_per_unit
     out = output_folder(out)
-    stem = f"{style}_{Path(path).stem}"
+    stem = f"{name}_{Path(path).stem}"
     bvh = out / f"{stem}.bvh"
     written = [bvh, out / f"{stem}_path.png", out / f"{stem}.json"]
+    written += [out / f"{stem}_timeline.png"] if timeline is not None else []
     check_free(written + ([bvh.with_suffix(".gif"), bvh.with_suffix(".mp4")] if gif else []), overwrite)
 
     started = time.perf_counter()
     # Refused here (a path too long for memory, a style without a speed) before the folder exists.
-    motion, speed_m_s = follower.walk_along(metres, style, speed or file_speed, seed, choice)
+    motion, speed_m_s = follower.walk_along(metres, style, speed or file_speed, seed, choice, transition)
     elapsed = time.perf_counter() - started
     root_xz = motion.root_positions[:, [0, 2]]
     with output_set(out):
         take = follower.take(motion, rig)
         scale = 1.0 if rig is None else rig.retargeter(take.motion).metric_leg_ratio
-        files = _write_walk(out, stem, take, metres, style, cap, scale)
+        files = _write_walk(out, stem, take, metres, name, cap, scale)
+        if timeline is not None:
+            seconds = motion.num_frames / motion.fps
+            files.append(
+                plot_timeline(out / f"{stem}_timeline.png", timeline, list(follower.styles), seconds)
+            )
         manifest = {
             "checkpoint": str(ckpt),
             "style": style,
@@ -250,6 +288,7 @@ def walk(
             "seconds": motion.num_frames / motion.fps,
             "generation_seconds": round(elapsed, 2),
             "path_error_m": path_error(metres, root_xz * unit),
+            "timeline": None if timeline is None else timeline.record(),
             "retarget": None if rig is None else rig.record(),
             "files": [str(f) for f in files],
             "preview": None if cap is None else cap.describe(motion.num_frames, motion.fps),
@@ -351,6 +390,8 @@ def walk_stream(
     follower = PathFollower.load(ckpt)
     model = follower.model
     index = follower.check(style, speed)
+    if index < 0:
+        raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is not for --stream; give one style")
     unit, fps = model.profile.metres_per_unit, model.spec["fps"]
     units_per_s = float(model.style_speed[index]) if speed is None else speed / unit
     if not units_per_s > 0:

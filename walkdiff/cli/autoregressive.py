@@ -60,7 +60,13 @@ def add_gesture(sub) -> None:
 def add_walk(sub) -> None:
     p = sub.add_parser("walk", help="walking of a style along a 2-D path (JSON): BVH + GIF + plot + error")
     p.add_argument("--ckpt", required=True, help="PathWalker checkpoint (conf/walk_xia.yaml)")
-    p.add_argument("--style", required=True, help="walking style, e.g. proud")
+    p.add_argument(
+        "--style", required=True, help="walking style (proud) or a timeline: neutral@0,old@4s,angry+old@8s"
+    )
+    p.add_argument(
+        "--transition", type=number(0), default=1.0,
+        help="with a --style timeline: seconds each change is ramped over (default 1)",
+    )  # fmt: skip
     p.add_argument(
         "--path", required=True,
         help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}; --stream: JSON lines (- for stdin)',
@@ -153,7 +159,7 @@ def run_walk(args: argparse.Namespace) -> None:
     options = keyword_options(args)
     if args.stream:
         no_rig_on_streams(options)
-        for key in ("stream", "gif", "preview_seconds"):
+        for key in ("stream", "gif", "preview_seconds", "transition"):
             del options[key]
         walk_stream(**options)  # prints its own JSON lines
     else:

@@ -132,8 +132,10 @@ class PathWalker(AutoregressiveDiffusion):
         return local_offsets(targets, root[:, :frames, [0, 2]], heading[:, :frames])
 
     def encode_control(self, control: torch.Tensor, style: torch.Tensor) -> torch.Tensor:
-        """Raw controls (B, F, 2K) and style ids (B,) -> encoder inputs (B, F, control_hidden)."""
-        return self.encoder.audio(self.control_normalizer.normalize(control)) + self.style(style)[:, None]
+        """Raw controls (B, F, 2K) and style ids (B,) or mixing weights (B, styles) -> encoder inputs
+        (B, F, control_hidden)."""
+        embedded = style @ self.style.weight if style.is_floating_point() else self.style(style)
+        return self.encoder.audio(self.control_normalizer.normalize(control)) + embedded[:, None]
 
     def pace(self, speed: torch.Tensor) -> np.ndarray:
         """(B, K) arc lengths of the control's points ahead of a walker at `speed` (B,) units/s."""
@@ -177,10 +179,11 @@ class PathWalker(AutoregressiveDiffusion):
         on_frame: Callable[[int, int], None] | None = None,
         sampler: SamplerChoice | None = None,
         fused: bool = True,
+        style_at: Callable[[int], tuple[torch.Tensor, torch.Tensor]] | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames;
         `on_frame(done, total)` is called after every frame (a progress bar). `sampler` and `fused` as
-        in `DiffMotion.generate`.
+        in `DiffMotion.generate`. `style_at(frame)`: (style, speed) of each frame instead (a timeline).
 
         Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
         """
@@ -195,6 +198,9 @@ class PathWalker(AutoregressiveDiffusion):
         poses = torch.zeros(rows, frames, dim, device=self.device)
         style = style.to(self.device)
         for f in range(frames):
+            if style_at is not None:
+                style, speed = style_at(f)
+                style, pace = style.to(self.device), self.pace(speed)
             control, progress = path_control(path, position, heading, progress, pace, reach)
             x = self.advance(
                 streams, self.encode_control(control.to(self.device)[:, None], style)[:, 0], generator

@@ -20,7 +20,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
@@ -57,33 +56,6 @@ class Sampling:
     def order(self) -> int:
         """Order of the solver step (step_coefficients): 2 for DPM-Solver++, 1 for DDPM and DDIM."""
         return 2 if self.sampler == "dpmpp" else 1
-
-
-# ---------------------------------------------------------------- labels
-
-
-def parse_style(model, text: str) -> tuple[torch.Tensor, str]:
-    """A style id, or mixing weights from 'angry:0.7,old:0.3' (scaled to sum 1), and a file-name label."""
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if len(parts) == 1 and ":" not in parts[0]:
-        return model.label_ids(parts, "style")[0], parts[0]
-    names, weights = [], []
-    for part in parts:
-        name, _, weight = part.partition(":")
-        try:
-            value = float(weight) if weight else float("nan")
-        except ValueError:
-            value = float("nan")
-        if not np.isfinite(value) or value <= 0:
-            raise WalkdiffError(f"--style: expected NAME or NAME:WEIGHT,... with weights > 0, got {text!r}")
-        names.append(name.strip())
-        weights.append(value)
-    ids = model.label_ids(names, "style")
-    mix = torch.zeros(len(model.spec["styles"]), device=model.device)
-    mix.index_add_(0, ids, torch.tensor(weights, device=model.device))
-    mix /= mix.sum()
-    label = "+".join(f"{n}{round(100 * w / sum(weights))}" for n, w in zip(names, weights, strict=True))
-    return mix, label
 
 
 # ---------------------------------------------------------------- windows

@@ -18,6 +18,7 @@ import torch
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_style, parse_timeline
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.footfix import fix_feet as pinned_feet
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
@@ -30,7 +31,6 @@ from walkdiff.styled.generation import (
     generate_long,
     load_generator,
     noised_steps,
-    parse_style,
     resolve_windows,
     restyle,
 )
@@ -41,7 +41,6 @@ from walkdiff.styled.style_examples import (
     mixed_code,
     parse_style_clips,
 )
-from walkdiff.styled.timeline import DEFAULT_TRANSITION, StyleTimeline, parse_timeline
 
 
 @dataclass(frozen=True)
@@ -56,7 +55,6 @@ class Request:
     overlap: int
     blend: int
     examples: tuple[StyleExample, ...] = ()
-    timeline: StyleTimeline | None = None
     timeline: StyleTimeline | None = None
 
 

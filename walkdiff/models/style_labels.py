@@ -1,10 +1,11 @@
-"""Style that changes over time: `--style neutral@0,old@4s,proud+angry@8s --transition 1`.
+"""Styles as users write them: a name, a mix (`angry:0.7,old:0.3`), or a timeline, style that changes
+over time (`--style neutral@0,old@4s,proud+angry@8s --transition 1`), for every model with style labels.
 
-Each key is a style (a name, or a mix written with '+': `angry:0.7+old:0.3`) from a time on. The
+A timeline's key is a style (a name, or a mix written with '+': `angry:0.7+old:0.3`) from a time on. Its
 conditioning is mixing weights over the training styles (which a model with a style encoder turns into
-codes), so between two keys it is interpolated linearly over `transition` seconds centred on the later
-key, and every window of a long clip is denoised under the weights at its middle frame: neighbouring
-windows differ little and the held overlap carries the motion across.
+codes), interpolated linearly between two keys over `transition` seconds centred on the later key. The
+window generator denoises every window under the weights at its middle frame (neighbouring windows
+differ little and the held overlap carries the motion across); the path walker takes them frame by frame.
 """
 
 from __future__ import annotations
@@ -20,6 +21,39 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import write_atomic
 
 DEFAULT_TRANSITION = 1.0  # seconds
+
+
+def parse_style(model, text: str) -> tuple[torch.Tensor, str]:
+    """A style id, or mixing weights from 'angry:0.7,old:0.3' (scaled to sum 1), and a file-name label."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if len(parts) == 1 and ":" not in parts[0]:
+        return style_ids(model, parts)[0], parts[0]
+    names, weights = [], []
+    for part in parts:
+        name, _, weight = part.partition(":")
+        try:
+            value = float(weight) if weight else float("nan")
+        except ValueError:
+            value = float("nan")
+        if not np.isfinite(value) or value <= 0:
+            raise WalkdiffError(f"--style: expected NAME or NAME:WEIGHT,... with weights > 0, got {text!r}")
+        names.append(name.strip())
+        weights.append(value)
+    ids = style_ids(model, names)
+    mix = torch.zeros(len(model.spec["styles"]), device=model.device)
+    mix.index_add_(0, ids, torch.tensor(weights, device=model.device))
+    mix /= mix.sum()
+    label = "+".join(f"{n}{round(100 * w / sum(weights))}" for n, w in zip(names, weights, strict=True))
+    return mix, label
+
+
+def style_ids(model, names: list[str]) -> torch.Tensor:
+    """The ids of style names in the model's vocabulary (`spec["styles"]`), or an error listing it."""
+    vocabulary = list(model.spec["styles"])
+    unknown = [n for n in names if n not in vocabulary]
+    if unknown:
+        raise WalkdiffError(f"unknown style {', '.join(unknown)}; valid: {', '.join(vocabulary)}")
+    return torch.tensor([vocabulary.index(n) for n in names], device=model.device)
 
 
 @dataclass(frozen=True)
@@ -61,8 +95,6 @@ class StyleTimeline:
 
 def parse_timeline(model, text: str, transition: float = DEFAULT_TRANSITION) -> StyleTimeline | None:
     """`text` as a timeline when it has keys (`STYLE@SECONDS,...`); None for a plain style or mix."""
-    from walkdiff.styled.generation import parse_style
-
     if "@" not in text:
         return None
     if not (math.isfinite(transition) and transition >= 0):
