@@ -45,6 +45,8 @@ CHECKPOINT_USERS = [
     ["evaluate-gesture", "--out", "o"],
     ["distill", "--out", "student.ckpt"],
     ["export", "--out", "exported"],
+    ["control"],
+    ["play", "--out", "o", "--script", "s.jsonl"],
 ]
 
 CASES = {

@@ -10,7 +10,9 @@
 - Rest poses that are no pose (every bone along one axis), a partial map (no fingers, one spine joint),
   and speed.
 
-Positions are compared in body heights (Xia: 24.13 units), directions in degrees.
+Positions are compared in body heights (Xia: 24.13 units), directions in degrees. The rig variants
+(`walkdiff.bench.rig_variants`) and the measures (`walkdiff.bench.retarget`) are shared with `walkdiff
+bench retarget`, which writes these figures over several clips.
 """
 
 from __future__ import annotations
@@ -20,31 +22,28 @@ import time
 import disguise
 import numpy as np
 import pytest
-import roma
-import torch
 
+from walkdiff.bench.retarget import (
+    BONES,
+    LEGS,
+    bone_errors,
+    foot_measures,
+    path_length,
+    position_error,
+    sides_kept,
+    turn_degrees,
+    world,
+)
+from walkdiff.bench.rig_variants import arms, legs, longer_spine, merged, random_frames, reposed
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.metrics.physics import skating_sums
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.humanoid import SIDES, humanoid_map
-from walkdiff.motion.posed_frames import subtree
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import foot_contacts
-from walkdiff.motion.rest_alignment import forward_kinematics_np
 from walkdiff.motion.retarget import Retargeter, retarget
-from walkdiff.motion.rotations import euler_to_matrix
-from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.motion.skeleton import Motion
 
 HEIGHT = 24.13  # Xia's body height, units
-# Bones (role to role) whose world direction must follow the source's; the legs' two long bones are
-# bent by the foot IK when the proportions differ, and checked without it.
-BONES = [
-    ("left_clavicle", "left_upper_arm"), ("left_upper_arm", "left_forearm"), ("left_forearm", "left_hand"),
-    ("left_foot", "left_toe"), ("neck", "head"), ("pelvis", "neck"), ("left_thigh", "right_thigh"),
-    ("left_upper_arm", "right_upper_arm"),
-]  # fmt: skip
-BONES += [(a.replace("left", "right"), b.replace("left", "right")) for a, b in BONES if "right" not in b]
-LEGS = [(f"{s}_{a}", f"{s}_{b}") for s in SIDES for a, b in (("thigh", "shin"), ("shin", "foot"))]
 
 
 @pytest.fixture(scope="module")
@@ -55,192 +54,6 @@ def xia(xia_dir) -> Motion:
 @pytest.fixture(scope="module")
 def zeggs(zeggs_dir) -> Motion:
     return read_bvh(zeggs_dir / "067_Speech_2_x_1_0.bvh")
-
-
-# ---------------------------------------------------------------- rigs that know the answer
-
-
-def reframe(motion: Motion, turns: np.ndarray) -> Motion:
-    """Every joint's local frame turned by `turns[j]` (J, 3, 3), the motion compensated: the same world
-    joint positions, world rotations W @ turns, offsets and rest pose turned with the frames."""
-    s = motion.skeleton
-    up = np.concatenate([np.eye(3)[None], turns[s.parents[1:]]])  # each joint's parent's turn
-    back = np.swapaxes(up, -1, -2)
-    rotations = back @ motion.rotations @ turns
-    rotations[:, 0] = motion.rotations[:, 0] @ turns[0]
-    positions = motion.positions.copy()
-    positions[:, 1:] = (back[1:] @ positions[:, 1:, :, None])[..., 0]
-    offsets = s.offsets.copy()
-    offsets[1:] = (back[1:] @ offsets[1:, :, None])[..., 0]
-    ends = {j: turns[j].T @ np.asarray(e) for j, e in s.end_sites.items()}
-    skeleton = Skeleton(list(s.names), s.parents.copy(), offsets, list(s.channels), ends)
-    return Motion(skeleton, rotations, positions, motion.frame_time)
-
-
-def about(axis: str, degrees: float) -> np.ndarray:
-    return euler_to_matrix(np.array([degrees]), axis)
-
-
-def reposed(motion: Motion) -> Motion:
-    """Arms from the T to an A pose (45 degrees down), legs spread 10 and bent forward 15 degrees at rest."""
-    s = motion.skeleton
-    turns = np.repeat(np.eye(3)[None], s.num_joints, axis=0)
-    for side, sign in (("Left", 1.0), ("Right", -1.0)):
-        for j in subtree(s, s.index(f"{side}Arm")):
-            turns[j] = about("Z", -45.0 * sign).T
-        for j in subtree(s, s.index(f"{side}UpLeg")):
-            turns[j] = (about("X", 15.0) @ about("Z", 10.0 * sign)).T
-    return reframe(motion, turns)
-
-
-def random_frames(motion: Motion, seed: int = 0) -> Motion:
-    """Every local frame turned at random: the rest pose becomes a crumpled heap (no pose at all)."""
-    q = np.random.default_rng(seed).normal(size=(motion.skeleton.num_joints, 4))
-    return reframe(
-        motion, roma.unitquat_to_rotmat(torch.tensor(q / np.linalg.norm(q, axis=1)[:, None])).numpy()
-    )
-
-
-def scaled(skeleton: Skeleton, joints, factor: float) -> Skeleton:
-    """The bones into `joints` (and their End Sites) `factor` times as long."""
-    offsets, ends = skeleton.offsets.copy(), {j: np.array(e) for j, e in skeleton.end_sites.items()}
-    for j in (skeleton.index(n) for n in joints):
-        offsets[j] *= factor
-        if j in ends:
-            ends[j] *= factor
-    return Skeleton(list(skeleton.names), skeleton.parents.copy(), offsets, list(skeleton.channels), ends)
-
-
-def legs(skeleton: Skeleton, factor: float) -> Skeleton:
-    return scaled(
-        skeleton, [f"{s}{p}" for s in ("Left", "Right") for p in ("Leg", "Foot", "ToeBase")], factor
-    )
-
-
-def arms(skeleton: Skeleton, factor: float) -> Skeleton:
-    below = [j for s in ("Left", "Right") for j in subtree(skeleton, skeleton.index(f"{s}Arm"))[1:]]
-    return scaled(skeleton, [skeleton.names[j] for j in below], factor)
-
-
-def inserted(skeleton: Skeleton, child: str, name: str) -> Skeleton:
-    """A new joint `name` halfway along the bone into `child`."""
-    c = skeleton.index(child)
-    renumber = [j if j < c else j + 1 for j in range(skeleton.num_joints)]
-    parents = [-1 if p < 0 else renumber[p] for p in skeleton.parents]
-    parents.insert(c, parents[c])
-    parents[c + 1] = c
-    offsets = list(skeleton.offsets)
-    offsets[c] = offsets[c] / 2
-    offsets.insert(c, offsets[c].copy())
-    channels = list(skeleton.channels)
-    channels.insert(c, ("Zrotation", "Yrotation", "Xrotation"))
-    ends = {renumber[j]: e for j, e in skeleton.end_sites.items()}
-    names = list(skeleton.names)
-    names.insert(c, name)
-    return Skeleton(names, np.array(parents), np.array(offsets), channels, ends)
-
-
-def longer_spine(skeleton: Skeleton) -> Skeleton:
-    return inserted(inserted(skeleton, "Spine", "SpineMid0"), "Spine1", "SpineMid1")
-
-
-def merged(skeleton: Skeleton, drop: list[str]) -> Skeleton:
-    """Joints `drop` taken out of the rest pose: their children hang from their parents (offsets added);
-    a dropped leaf goes with its bone."""
-    keep = [j for j, n in enumerate(skeleton.names) if n not in drop]
-    new = {j: i for i, j in enumerate(keep)}
-    parents, offsets = [], []
-    for j in keep:
-        p, offset = int(skeleton.parents[j]), skeleton.offsets[j].copy()
-        while p >= 0 and skeleton.names[p] in drop:
-            offset, p = offset + skeleton.offsets[p], int(skeleton.parents[p])
-        parents.append(-1 if p < 0 else new[p])
-        offsets.append(offset)
-    ends = {new[j]: e for j, e in skeleton.end_sites.items() if j in new}
-    return Skeleton(
-        [skeleton.names[j] for j in keep],
-        np.array(parents),
-        np.array(offsets),
-        [skeleton.channels[j] for j in keep],
-        ends,
-    )
-
-
-# ---------------------------------------------------------------- measures
-
-
-def world(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    return forward_kinematics_np(motion.rotations, motion.positions, motion.skeleton.parents)
-
-
-def position_error(a: Motion, b: Motion, height: float = HEIGHT) -> np.ndarray:
-    """(F, J) distances between the same joints of two clips, in body heights."""
-    pa, pb = world(a)[0], world(b)[0]
-    names = [n for n in a.skeleton.names if n in b.skeleton.names]
-    ia, ib = [a.skeleton.index(n) for n in names], [b.skeleton.index(n) for n in names]
-    return np.linalg.norm(pa[:, ia] - pb[:, ib], axis=-1) / height
-
-
-def degrees(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-
-
-def canonical_points(motion: Motion) -> np.ndarray:
-    return world(motion)[0] @ SkeletonProfile.detect(motion.slice(0, 1)).turn.T
-
-
-def bone_errors(source: Motion, target: Motion, bones=BONES) -> np.ndarray:
-    """(F, bones) angles between the world directions of the same role-to-role bones (canonical axes)."""
-    ms, mt = humanoid_map(source), humanoid_map(target)
-    ps, pt = canonical_points(source), canonical_points(target)
-    out = []
-    for a, b in bones:
-        js = [source.skeleton.index(ms.joint(r)) for r in (a, b)]
-        jt = [target.skeleton.index(mt.joint(r)) for r in (a, b)]
-        out.append(degrees(pt[:, jt[1]] - pt[:, jt[0]], ps[:, js[1]] - ps[:, js[0]]))
-    return np.stack(out, axis=1)
-
-
-def turn_degrees(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles of the rotations taking each of `b` (..., 3, 3) to `a`."""
-    trace = np.trace(a @ np.swapaxes(b, -1, -2), axis1=-2, axis2=-1)
-    return np.degrees(np.arccos(np.clip((trace - 1) / 2, -1.0, 1.0)))
-
-
-def sides_kept(source: Motion, target: Motion, ratio: float) -> bool:
-    """Every left hand and foot of the target nearer the source's same joint (scaled) than the other's."""
-    ms, mt = humanoid_map(source), humanoid_map(target)
-    ps, pt = canonical_points(source) * ratio, canonical_points(target)
-    for part in ("hand", "foot"):
-        for side, other in (("left", "right"), ("right", "left")):
-            t = pt[:, target.skeleton.index(mt.joint(f"{side}_{part}"))]
-            same, swapped = (ps[:, source.skeleton.index(ms.joint(f"{s}_{part}"))] for s in (side, other))
-            if np.mean(np.linalg.norm(t - same, axis=1)) >= np.mean(np.linalg.norm(t - swapped, axis=1)):
-                return False
-    return True
-
-
-def foot_measures(motion: Motion, contacts: np.ndarray, height: float) -> tuple[float, float, float]:
-    """The project's skate ratio (its own profile's speed threshold) and mean horizontal slide speed (body
-    heights/s) over the given contacts, and how far any contact joint goes below the level it is planted
-    at (the 5th percentile of its planted heights), in body heights."""
-    profile = SkeletonProfile.detect(motion)
-    feet = [motion.skeleton.index(n) for n in profile.contacts.joints]
-    positions = torch.tensor(world(motion)[0] @ profile.turn.T)[None]
-    steps, skating, speed = skating_sums(
-        positions, torch.tensor(contacts)[None], feet, motion.fps, profile.contact_speed
-    )
-    heights = positions[0, :, feet, 1].numpy()
-    planted = contacts > 0.5
-    floors = [np.percentile(heights[planted[:, i], i], 5) for i in range(4)]
-    below = max(float((floors[i] - heights[:, i]).max()) for i in range(4))
-    return float(skating / steps), float(speed / steps) / height, below / height
-
-
-def path_length(motion: Motion, joint: str) -> float:
-    points = canonical_points(motion)[:, motion.skeleton.index(joint)]
-    return float(np.linalg.norm(np.diff(points[:, [0, 2]], axis=0), axis=1).sum())
 
 
 # ---------------------------------------------------------------- same proportions: the answer is known
@@ -273,7 +86,7 @@ def test_other_rest_pose_frames_axes_and_units_give_the_same_world_positions(xia
     on_b = retarget(on_a.motion, b, source_map=fingers)
     assert position_error(on_b, b, record_b.scale * HEIGHT).max() < 1e-6
     back = retarget(on_b, xia.skeleton)
-    assert position_error(back, xia).max() < 1e-6  # A -> B -> A
+    assert position_error(back, xia, HEIGHT).max() < 1e-6  # A -> B -> A
     write_bvh(tmp_path / "a.bvh", on_a.motion, precision=9)
     again = read_bvh(tmp_path / "a.bvh")
     assert again.skeleton.channels == a.skeleton.channels
@@ -284,9 +97,9 @@ def test_pinned_feet_move_only_by_the_sources_own_sliding(xia):
     """`feet="pin"` holds planted feet still: on the same proportions the clip moves only where the
     source's own feet slid while planted (this clip: under 2.5% of body height, 0.05% on average)."""
     pinned = retarget(xia, xia.skeleton, feet="pin")
-    error = position_error(pinned, xia)
+    error = position_error(pinned, xia, HEIGHT)
     assert error.max() < 0.025 and error.mean() < 0.0005
-    assert position_error(retarget(xia, xia.skeleton, feet="off"), xia).max() < 1e-9
+    assert position_error(retarget(xia, xia.skeleton, feet="off"), xia, HEIGHT).max() < 1e-9
 
 
 # ---------------------------------------------------------------- other proportions
@@ -344,7 +157,7 @@ def test_xia_onto_zeggs_and_back(xia, zeggs):
     assert sides_kept(xia, out, result.leg_ratio)
     back = Retargeter(out, xia.slice(0, 1))
     assert back.rest_joints == ("LHipJoint", "RHipJoint")
-    error = position_error(back(out).motion, xia)
+    error = position_error(back(out).motion, xia, HEIGHT)
     assert error.mean() < 0.01 and error.max() < 0.03
     clip = zeggs.slice(600, 720)
     on_xia = Retargeter(clip, xia.slice(0, 1))(clip)
@@ -361,13 +174,13 @@ def test_rest_poses_that_are_no_pose_align_on_a_reference_frame(xia):
     as the source, a standing frame of the clip is found (or the user's). Both exact; a target given as a
     bare skeleton with such a rest pose is refused, saying why."""
     laid = disguise.axis_rest(xia)
-    assert position_error(retarget(xia, laid), xia).max() < 1e-6
+    assert position_error(retarget(xia, laid), xia, HEIGHT).max() < 1e-6
     from_laid = Retargeter(laid, xia.skeleton)
     assert "its rest pose is no pose: its bones lie on one line" in from_laid.source_ref.how
-    assert position_error(from_laid(laid).motion, xia).max() < 1e-6
+    assert position_error(from_laid(laid).motion, xia, HEIGHT).max() < 1e-6
     given = Retargeter(laid, xia.skeleton, reference_frame=7)
     assert given.source_ref.how == "frame 7 of the clip (given)"
-    assert position_error(given(laid).motion, xia).max() < 1e-6
+    assert position_error(given(laid).motion, xia, HEIGHT).max() < 1e-6
     with pytest.raises(WalkdiffError, match="target's reference pose.*is no pose: its bones lie on one line"):
         Retargeter(xia, laid.skeleton)
 

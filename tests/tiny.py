@@ -30,11 +30,15 @@ WALKER = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_
 GESTURES = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=10)
 
 
-def generator(root: Path, epochs: int = 60, name: str = "tiny", **options) -> Path:
-    """A StyledMotionDiffusion fitted for `epochs` on the Xia-named clips in root/xia; its checkpoint."""
+def generator(
+    root: Path, epochs: int = 60, name: str = "tiny", data_options: dict | None = None, **options
+) -> Path:
+    """A StyledMotionDiffusion fitted for `epochs` on the Xia-named clips in root/xia (MotionDataModule
+    settings beside these: `data_options`); its checkpoint."""
     dm = MotionDataModule(
-        root=str(root), cache_dir=str(root / "cache"), batch_size=16, window=24, preprocess_workers=1
-    )
+        root=str(root), cache_dir=str(root / "cache"), batch_size=16, window=24, preprocess_workers=1,
+        **(data_options or {}),
+    )  # fmt: skip
     L.seed_everything(0)
     model = StyledMotionDiffusion(dm.spec, **(GENERATOR | options))
     trainer = synthetic.quiet_trainer(max_epochs=epochs, limit_val_batches=0)

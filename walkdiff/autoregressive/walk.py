@@ -126,6 +126,25 @@ class PathFollower(Pipeline):
         motion, _ = self.walk_along(metres, style, speed, seed, choice, transition)
         return self.take(motion, rig)
 
+    def controller(
+        self,
+        style: str,
+        speed: float | None = None,
+        seed: int = 0,
+        sampler: str = "ddim",
+        steps: int | None = None,
+        eta: float | None = None,
+        characters: int = 1,
+        **options,
+    ):
+        """A `WalkController` (walkdiff/autoregressive/controller.py): `step(direction, speed)` makes the
+        next frame of `characters` walkers starting as `style` (a name, a mix or weights) at `speed` m/s
+        (None: the style's own). Default sampler DDIM 10 steps, eta 1 (docs/live-control.md); `options`:
+        transition, turn_rate, positions, headings, record."""
+        from walkdiff.autoregressive.controller import controller
+
+        return controller(self.model, style, speed, seed, sampler, steps, eta, characters, **options)
+
     def check(self, style: str, speed: float | None) -> int:
         """The style's index (-1 for a timeline), once the style and the speed (m/s, None: the style's
         own) are valid."""

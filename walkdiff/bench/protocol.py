@@ -59,22 +59,26 @@ def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, 
 
 
 def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.Tensor], strength: float,
-               keep: bool, seed: int) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
-    """Every source restyled to every other style: (outputs, their sources, target styles)."""
+               keep: bool, seed: int, to: dict[str, torch.Tensor] | None = None,
+               sampling=None) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
+    """Every source restyled to every other style: (outputs, their sources, target styles). `to` (target
+    style -> the model's style input, an id or a code) restyles to those styles instead; `sampling`
+    (default DDPM) is how."""
     from walkdiff.styled.generation import Sampling, restyle
 
     styles = list(model.spec["styles"])
     contents = list(model.spec["contents"])
+    to = to or {s: torch.tensor(i) for i, s in enumerate(styles)}
     generator = torch.Generator().manual_seed(seed)
     outputs, paired, targets = [], [], []
     pairs = list(zip(sources, raws, strict=True))
     for source, raw in progress(pairs, desc=f"transfer {strength}", unit="clip"):
-        target = torch.tensor([i for i, s in enumerate(styles) if s != source.style])
-        x0 = model.normalizer.normalize(raw)[None].expand(len(target), -1, -1)
-        content = torch.full_like(target, contents.index(source.content))
-        x = restyle(model, x0, target, content, strength, Sampling(), generator, keep)
+        names = [s for s in to if s != source.style]
+        target = torch.stack([to[s] for s in names])
+        x0 = model.normalizer.normalize(raw)[None].expand(len(names), -1, -1)
+        content = torch.full((len(names),), contents.index(source.content))
+        x = restyle(model, x0, target, content, strength, sampling or Sampling(), generator, keep)
         restyled = torch.from_numpy(model.to_raw(x, True))
-        names = [styles[int(t)] for t in target]
         outputs += _clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
         paired += [source] * len(target)
         targets += names

@@ -16,7 +16,7 @@ def add_parsers(sub) -> None:
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     for add in (
         add_data, add_train, add_gesture, add_stream, add_memory, add_view, add_walk, add_distill, add_sample,
-        add_protocol,
+        add_protocol, add_style, add_retarget, add_play,
     ):  # fmt: skip
         add(bench)
     for b in bench.choices.values():
@@ -295,3 +295,107 @@ def run_protocol(args: argparse.Namespace) -> None:
         args.bootstrap, args.seed,
     )  # fmt: skip
     print(f"wrote {args.out}/protocol.json and protocol.md")
+
+
+def add_style(bench) -> None:
+    b = bench.add_parser(
+        "style",
+        help="style from example clips: seen styles against their labels and the label-only model, unseen "
+        "styles against the ceiling, the baselines and the real floor",
+    )
+    b.add_argument(
+        "--ckpt", required=True, help="StyledMotionDiffusion checkpoint with a style encoder (style codes)"
+    )
+    b.add_argument(
+        "--unseen-ckpt",
+        default=None,
+        help="the same trained with data.leave_out_styles: rows of the styles it left out",
+    )
+    b.add_argument(
+        "--labels-ckpt",
+        default=None,
+        help="a label-only checkpoint trained on every style: its rows beside the code model's, the ceiling",
+    )
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint (its test clips: examples)")
+    b.add_argument("--out", required=True, help="folder for style.json and style.md")
+    b.add_argument(
+        "--per-example", type=count(1), default=8, help="windows sampled per example clip (default 8)"
+    )
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="sampler (default ddim)")
+    b.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    b.add_argument("--seed", type=count(0), default=0)
+    b.add_argument("--bootstrap", type=count(0), default=200, help="resamples of the clips (default 200)")
+    b.add_argument(
+        "--timeline-clips", type=count(1), default=16, help="clips of three styles for the transitions (16)"
+    )
+    b.set_defaults(run=run_style)
+
+
+def run_style(args: argparse.Namespace) -> None:
+    from walkdiff.bench.style import bench_style, format_style
+
+    result = bench_style(
+        args.out, args.ckpt, args.evaluator, args.unseen_ckpt, args.labels_ckpt, args.per_example,
+        args.sampler, args.steps, args.seed, args.bootstrap, timeline_clips=args.timeline_clips,
+    )  # fmt: skip
+    print(format_style(result))
+    print(f"wrote {args.out}/style.json and style.md")
+
+
+def add_retarget(bench) -> None:
+    b = bench.add_parser(
+        "retarget",
+        help="retargeting onto re-posed and re-proportioned copies of Xia's rig, ZEGGS and the built-in "
+        "rigs: positions, bone directions, feet, speed",
+    )
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument(
+        "--clips", type=count(1), default=8, help="Xia clips, of different styles and contents (default 8)"
+    )
+    b.add_argument("--frames", type=count(2), default=300, help="frames per clip, at most (default 300)")
+    b.add_argument(
+        "--data", default=None, help="data root holding xia/ and zeggs/ (default $WALKDIFF_DATA, else ./data)"
+    )
+    b.set_defaults(run=run_retarget)
+
+
+def run_retarget(args: argparse.Namespace) -> None:
+    from walkdiff.bench.retarget import bench_retarget, load_clips
+
+    clips, zeggs = load_clips(args.data, args.clips)
+    bench_retarget(clips, zeggs, args.out, frames=args.frames)
+
+
+def add_play(bench) -> None:
+    b = bench.add_parser(
+        "play", help="a steered walker on scripted takes: latency, speed, following, style, skating, seams"
+    )
+    b.add_argument("--ckpt", required=True, help="PathWalker checkpoint")
+    b.add_argument("--evaluator", required=True, help="MotionEvaluator checkpoint")
+    b.add_argument("--out", required=True, help="JSON file")
+    b.add_argument(
+        "--seeds", type=count(1), default=2, help="seeds each scripted take is walked with (default 2)"
+    )
+    b.add_argument(
+        "--hold", type=number(2), default=3.0, help="seconds between a take's commands (default 3)"
+    )
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="per-frame sampler (default ddim)")
+    b.add_argument("--steps", type=count(1), default=None, help="its steps (default 10)")
+    b.add_argument("--eta", type=number(0, 1), default=None, help="DDIM noise (default 1)")
+    b.add_argument("--transition", type=number(0), default=0.0, help="seconds a style switch is ramped over")
+    b.add_argument(
+        "--characters", default="1,4,8,16,32", help="characters batched, timed (default 1,4,8,16,32)"
+    )
+    b.add_argument(
+        "--frames", type=count(1), default=30, help="frames timed per character count (default 30)"
+    )
+    b.set_defaults(run=run_play)
+
+
+def run_play(args: argparse.Namespace) -> None:
+    from walkdiff.bench.play import bench_play
+
+    bench_play(
+        args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
+        args.transition, frame_counts(args.characters, "--characters"), args.frames,
+    )  # fmt: skip

@@ -7,14 +7,14 @@ import sys
 from pathlib import Path
 
 from walkdiff.callbacks.fit import lightning_cli
-from walkdiff.cli import autoregressive, bench, distill, evaluate, files, generate, model_files
+from walkdiff.cli import autoregressive, bench, distill, evaluate, files, generate, live, model_files
 from walkdiff.common.arguments import Parser
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import apply_threads, choose_threads
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
 # In the order `walkdiff --help` lists their commands; each sets `run`, the handler of what it parsed.
-FAMILIES = (files, evaluate, generate, autoregressive, distill, model_files, bench)
+FAMILIES = (files, evaluate, generate, autoregressive, live, distill, model_files, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,10 +96,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 # Folder outputs of the bench verbs; the others write one JSON file.
-BENCH_FOLDERS = ("sample", "protocol")
+BENCH_FOLDERS = ("sample", "protocol", "style")
 # The files that mark an earlier run, for commands whose own code does not check what it would replace.
 REPORTS = {"evaluate": ("report.json", "report.md"), "evaluate-gesture": ("report.json",)}
-BENCH_REPORTS = {"sample": ("sample.json", "sample.png"), "protocol": ("protocol.json", "protocol.md")}
+BENCH_REPORTS = {
+    "sample": ("sample.json", "sample.png"),
+    "protocol": ("protocol.json", "protocol.md"),
+    "style": ("style.json", "style.md"),
+}
 
 
 def command_output(args: argparse.Namespace) -> tuple[Path, tuple[str, ...]] | None:
