@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from walkdiff.common.errors import WalkdiffError
@@ -65,3 +67,17 @@ def apply_threads(threads: int, why: str = "") -> None:
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(threads)
+
+
+@contextmanager
+def single_thread() -> Iterator[None]:
+    """Torch on one thread for a while: for work made of many small tensor operations (a few joints at a
+    time), where other threads only add waiting, most of all on a machine busy with other work."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.threads import single_thread
 from walkdiff.motion.footfix import ankle_offsets, two_bone_ik
 from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map
 from walkdiff.motion.posed_frames import ancestors, rest_pose_problem
@@ -182,6 +183,10 @@ class Retargeter:
     # ------------------------------------------------------------ per clip
 
     def __call__(self, motion: Motion) -> RetargetResult:
+        with single_thread():  # the foot IK's small torch operations: threads only wait
+            return self._retarget(motion)
+
+    def _retarget(self, motion: Motion) -> RetargetResult:
         if not motion.skeleton.same_hierarchy(self.source_skeleton):
             raise WalkdiffError(
                 "retarget: the clip is not on the source skeleton this retargeter was made for "
