@@ -41,8 +41,9 @@ def _pair_row(name: str, f: dict) -> str:
 
     turn = _show(f["hands_feet_turn_max_deg"], "{:.1f}") if "hands_feet_turn_max_deg" in f else "-"
     return (
-        f"  {name:24s} {two('bones_median_deg', 'bones_p95_deg'):>14s} "
-        f"{two('legs_free_median_deg', 'legs_free_p95_deg'):>12s} {turn:>9s} "
+        f"  {name:24s} {two('bones_median_deg', 'bones_p95_deg'):>10s} "
+        f"{two('bones_worst_median_deg', 'bones_worst_p95_deg'):>11s} "
+        f"{two('legs_free_median_deg', 'legs_free_p95_deg'):>10s} {turn:>5s} "
         f"{_show(f['path_length_error'], '{:.1e}'):>7s} "
         f"{two('skate_ratio', 'skate_ratio_source', '{:.3f}', ' (') + ')':>14s} "
         f"{two('contacts_kept_own', 'contacts_kept_scaled', '{:.3f}'):>16s} "
@@ -64,7 +65,8 @@ def summary(result: dict) -> list[str]:
         pos, back = _show(f["position_error_max"], "{:.1e}"), _show(f["round_trip_max"], "{:.1e}")
         lines.append(f"  {name:56s} {pos:>13s} {back:>12s}")
     lines.append(
-        f"{'pair':26s} {'bones med/p95':>14s} {'legs off':>12s} {'hand/foot':>9s} {'path':>7s} "
+        f"{'pair (degrees: median/p95)':26s} {'bones':>10s} {'worst bone':>11s} {'legs off':>10s} "
+        f"{'h+f':>5s} {'path':>7s} "
         f"{'skate (src)':>14s} {'contacts own/sc':>16s} {'below':>7s} {'sides':>5s}"
     )
     for name, f in [*result["other_proportions"].items(), *result["real_pairs"].items()]:
