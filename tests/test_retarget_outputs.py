@@ -94,6 +94,7 @@ def test_walk_to_a_rig_scales_the_path_by_the_legs(xia_tiny, tmp_path):
     manifest = walk(str(xia_tiny["walker"]), "old", str(path), str(tmp_path / "out"), seed=1, to="smpl",
                     gif=False, **FAST)  # fmt: skip
     assert manifest["retarget"]["target"] == "built-in rig smpl"
+    assert len(manifest["retarget"]["leg_ratio"]) == 1  # one preparation: the model's skeleton onto smpl
     written = read_bvh(manifest["files"][0])
     assert written.skeleton.names == rig("smpl").skeleton.names and standing(written, "smpl")
     follower = walkdiff.load(xia_tiny["walker"])
@@ -102,6 +103,7 @@ def test_walk_to_a_rig_scales_the_path_by_the_legs(xia_tiny, tmp_path):
     own = follower.follow(path, "old", seed=1, **FAST)
     ratio = walkdiff.TargetRig("smpl").retargeter(own.motion, own.profile).metric_leg_ratio
     assert travelled(take) == pytest.approx(travelled(own) * ratio, rel=0.01)
+    assert manifest["retarget"]["leg_ratio"][0] == pytest.approx(ratio * own.metres_per_unit, rel=1e-4)
     assert any(f.endswith("_path.png") for f in manifest["files"])
 
 

@@ -287,8 +287,11 @@ def walk(
     elapsed = time.perf_counter() - started
     root_xz = motion.root_positions[:, [0, 2]]
     with output_set(out):
-        take = follower.take(motion, rig)
-        scale = 1.0 if rig is None else rig.retargeter(take.motion).metric_leg_ratio
+        take = follower.take(motion)
+        scale = 1.0  # the walk's path on the rig: the model's times the legs' ratio in metres
+        if rig is not None:
+            scale = rig.retargeter(take.motion, take.profile).metric_leg_ratio
+            take = take.retarget(rig)
         files = _write_walk(out, stem, take, metres, name, cap, scale)
         if timeline is not None:
             seconds = motion.num_frames / motion.fps

@@ -212,7 +212,7 @@ def _unseen(run: Run, path: str | Path, labels) -> dict:
         return training[int((stored @ code).argmax())]
 
     sampling = _unseen_sampling(run, model, labels, examples, against, nearest)
-    means = {s: mixed_code(model, [(e.code, 1.0) for e in examples if e.style == s]) for s in left}
+    means = {s: mixed_code([(e.code, 1.0) for e in examples if e.style == s]) for s in left}
     transfer = _unseen_transfer(run, model, labels, means, against, nearest, training)
     row = sampling["rows"][EXAMPLES]
     floor = sampling["rows"][FLOOR]["fmd"]["value"]

@@ -106,8 +106,9 @@ def reference_windows(
     from (B,). Draws from torch's global generator (seeded per batch by the training step)."""
     batch, frames = features.shape[:2]
     base = [c.split("#", 1)[0] for c in clips]
+    ids = torch.tensor([base.index(b) for b in base], device=features.device)  # one id per clip
     same_style = styles[:, None] == styles[None, :]
-    other_clip = torch.tensor([[a != b for b in base] for a in base], device=features.device)
+    other_clip = ids[:, None] != ids[None, :]
     allowed = same_style & other_clip
     score = torch.rand(batch, batch, device=features.device).masked_fill(~allowed, -1.0)
     source = torch.where(allowed.any(dim=1), score.argmax(dim=1), torch.arange(batch, device=features.device))

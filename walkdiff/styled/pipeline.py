@@ -213,7 +213,7 @@ class StyledGenerator(Pipeline):
             weighted, examples = self.examples(style_clips)
             if style is not None:
                 weighted.insert(0, (label_code(self.model, style_label), 1.0))
-            style_label = mixed_code(self.model, weighted)
+            style_label = mixed_code(weighted)
             names = [e.source for e in examples]
             label = "+".join(([label] if style is not None else []) + [f"clip-{Path(n).stem}" for n in names])
         return Request(style_label, label, content_id, sampling, overlap, blend, examples)

@@ -78,7 +78,7 @@ def example_windows(model, motion: Motion, where: str) -> torch.Tensor:
     return torch.stack([features[s : s + window] for s in starts]).float().to(model.device)
 
 
-def mixed_code(model, weighted: list[tuple[torch.Tensor, float]]) -> torch.Tensor:
+def mixed_code(weighted: list[tuple[torch.Tensor, float]]) -> torch.Tensor:
     """The direction of the weighted sum of codes (code_dim,)."""
     total = sum(w * code for code, w in weighted)
     return F.normalize(total, dim=0)
