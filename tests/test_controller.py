@@ -390,11 +390,6 @@ def test_a_bad_script_line_is_named_before_any_work(ckpt, tmp_path, capsys, line
     assert not out.exists()
 
 
-def test_play_without_a_script_says_the_page_is_not_built_yet(ckpt, capsys):
-    assert main(["play", "--ckpt", str(ckpt)]) == 1
-    assert "the interactive page is not built yet; give --script FILE" in capsys.readouterr().err
-
-
 # ---------------------------------------------------------------- walkdiff bench play
 
 
@@ -431,8 +426,9 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
     result = json.loads(out.read_text())
     printed = capsys.readouterr().out
     assert "bench play: turn_90_left, seed 0" in printed and "bench play: style, skating and seams" in printed
-    for section in ("latency", "generation", "following", "style", "skating", "seams", "targets", "machine"):
+    for section in ("latency", "generation", "following", "style", "skating", "seams", "page", "targets"):
         assert section in result, section
+    assert "machine" in result and "page_open_s" in result["page"] and result["page"].get("bones_drawn", 1)
     assert all(math.isfinite(x) for x in numbers(result))
     assert result["styles"] == ["neutral", "old"] and result["seams"]["switches"] == 2
     assert {"turn", "speed", "stop"} == set(result["latency"]["by_kind"])

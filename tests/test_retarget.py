@@ -26,6 +26,7 @@ import pytest
 from walkdiff.bench.retarget import (
     BONES,
     LEGS,
+    bone_angles,
     bone_errors,
     foot_measures,
     path_length,
@@ -41,7 +42,7 @@ from walkdiff.motion.humanoid import SIDES, humanoid_map
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import foot_contacts
 from walkdiff.motion.retarget import Retargeter, retarget
-from walkdiff.motion.skeleton import Motion
+from walkdiff.motion.skeleton import Motion, Skeleton
 
 HEIGHT = 24.13  # Xia's body height, units
 
@@ -91,6 +92,28 @@ def test_other_rest_pose_frames_axes_and_units_give_the_same_world_positions(xia
     again = read_bvh(tmp_path / "a.bvh")
     assert again.skeleton.channels == a.skeleton.channels
     assert position_error(again, a, record_a.scale * HEIGHT).max() < 1e-6
+
+
+def test_contact_thresholds_follow_the_legs_not_the_height(xia):
+    """A foot's speed and lift go with the stride: a rig with legs 1.25x (its height grows less) gets
+    contact thresholds 1.25x, so the same walk keeps the same contacts; a rig with no legs to find
+    takes its thresholds from its body height and says so."""
+    longer = retarget(xia, legs(xia.skeleton, 1.25))
+    a, b = SkeletonProfile.detect(xia), SkeletonProfile.detect(longer)
+    assert b.body_height / a.body_height < 1.2
+    assert b.contact_height / a.contact_height == pytest.approx(1.25, rel=1e-9)
+    assert b.contact_speed / a.contact_speed == pytest.approx(1.25, rel=1e-9)
+    assert "leg lengths" in a.found["contacts"]
+    trunk = xia.skeleton.index("Spine")
+    chain = [j for j in range(xia.skeleton.num_joints) if j in (0, trunk)]
+    skeleton = Skeleton(
+        [xia.skeleton.names[j] for j in chain], [-1, 0], xia.skeleton.offsets[chain],
+        [xia.skeleton.channels[j] for j in chain], {1: np.array([0.0, 5.0, 0.0])},
+    )  # fmt: skip
+    stub = Motion(skeleton, xia.rotations[:, chain], xia.positions[:, chain], xia.frame_time)
+    found = SkeletonProfile.detect(stub)
+    assert "body heights" in found.found["contacts"] and "no legs found" in found.found["contacts"]
+    assert found.contact_height == pytest.approx(0.02 * found.body_height)
 
 
 def test_pinned_feet_move_only_by_the_sources_own_sliding(xia):
@@ -145,8 +168,11 @@ def test_other_proportions(xia, change):
 def test_xia_onto_zeggs_and_back(xia, zeggs):
     """Onto the ZEGGS skeleton, its first frame as the target's rest pose (4 spine joints against 3, no
     hip joints, full fingers against an index and a thumb) and back onto Xia; and ZEGGS's own clip onto
-    Xia. Mapped bones follow the source, sides are kept; the round trip stays within 1% of body height on
-    average (the hip joints Xia has and ZEGGS has not come back rigid)."""
+    Xia. Mapped bones follow the source, and the hip line too (ZEGGS's thighs hang from its pelvis,
+    Xia's from hip joints that turn: the pelvis follows the line they make); sides
+    are kept; the round trip stays within 1% of body height on average. It cannot be exact: ZEGGS has
+    no joints for Xia's hip joints, which come back rigid with a pelvis that carried their turn, and
+    where ZEGGS's legs could not reach Xia's pushing-off feet its body went lower."""
     to_zeggs = Retargeter(xia, zeggs.slice(0, 1))
     result = to_zeggs(xia)
     out = result.motion
@@ -154,11 +180,12 @@ def test_xia_onto_zeggs_and_back(xia, zeggs):
     assert {"LeftHandMiddle1", "RightHandPinky4", "HeadEnd"} <= set(result.rest_joints)
     errors = bone_errors(xia, out)
     assert np.median(errors) < 2.0 and np.percentile(errors, 95) < 5.0
+    assert np.median(dict(bone_angles(xia, out))["left_thigh-right_thigh"]) < 0.01
     assert sides_kept(xia, out, result.leg_ratio)
     back = Retargeter(out, xia.slice(0, 1))
     assert back.rest_joints == ("LHipJoint", "RHipJoint")
     error = position_error(back(out).motion, xia, HEIGHT)
-    assert error.mean() < 0.01 and error.max() < 0.03
+    assert error.mean() < 0.01 and error.max() < 0.06
     clip = zeggs.slice(600, 720)
     on_xia = Retargeter(clip, xia.slice(0, 1))(clip)
     errors = bone_errors(clip, on_xia.motion)

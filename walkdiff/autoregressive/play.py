@@ -3,7 +3,7 @@ stdin, a pose per frame as a JSON line on stdout) and `walkdiff play --script` (
 commands replayed headless into a take written as BVH, glb and the commands per frame).
 
 Both drive a `WalkController` (walkdiff/autoregressive/controller.py); keys go through `KeyControl`
-(walkdiff/autoregressive/keys.py), which the interactive page will share.
+(walkdiff/autoregressive/keys.py) and `Replay`, which the interactive page (`play_page.py`) shares.
 """
 
 from __future__ import annotations
@@ -102,15 +102,17 @@ def whole(data: dict, name: str, low: int, high: int) -> int:
 # ---------------------------------------------------------------- the takes and their files
 
 
-def take_files(out: Path, characters: int) -> list[Path]:
-    names = ["take"] if characters == 1 else [f"take_{k}" for k in range(characters)]
-    return [out / f"{n}{suffix}" for n in names for suffix in (".bvh", ".glb")] + [out / "take.json"]
+def take_files(out: Path, characters: int, name: str = "take") -> list[Path]:
+    names = [name] if characters == 1 else [f"{name}_{k}" for k in range(characters)]
+    return [out / f"{n}{suffix}" for n in names for suffix in (".bvh", ".glb")] + [out / f"{name}.json"]
 
 
-def write_takes(out: Path, walker: WalkController, manifest: dict, fps: float | None = None) -> list[Path]:
-    """Each character's recorded frames as BVH and glb (at `fps`, default the model's), and take.json:
-    all or none."""
-    files = take_files(out, walker.characters)
+def write_takes(
+    out: Path, walker: WalkController, manifest: dict, fps: float | None = None, name: str = "take"
+) -> list[Path]:
+    """Each character's recorded frames as BVH and glb (at `fps`, default the model's), and take.json
+    (`name`.json): all or none."""
+    files = take_files(out, walker.characters, name)
     with output_set(out):
         for k in range(walker.characters):
             take = walker.take(k)
@@ -245,8 +247,8 @@ def play(
     the frames recorded written as take.bvh, take.glb and take.json (the commands per frame)."""
     if script is None:
         raise WalkdiffError(
-            "walkdiff play: the interactive page is not built yet; give --script FILE (JSON lines of timed "
-            "key events and commands) to play a take headless"
+            "play: give a script (JSON lines of timed key events and commands) to play a take headless; "
+            "`walkdiff play` without --script (walkdiff.autoregressive.play_page) serves the page"
         )
     if out is None:
         raise WalkdiffError("--out: give the folder for take.bvh, take.glb and take.json")

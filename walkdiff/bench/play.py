@@ -24,6 +24,9 @@ switching every `hold` seconds. Each runs for every seed, one character, as a ga
 - **Seams at style switches**: the change of mean joint speed from one frame step to the next, its
   largest over the three steps around a switch, against the 95th percentile of the same over windows
   inside a style (at least 0.5 s from a switch); the project's `seam_tails` of the joint speeds too.
+- **The page** (`walkdiff play`): seconds from launching headless Chromium on the page's address to the
+  walker's bones drawn, the page's server already listening (its checkpoint loaded: `served_s`); left
+  out, with the reason, where no Chromium is installed.
 """
 
 from __future__ import annotations
@@ -58,6 +61,7 @@ TARGETS = {  # issue 31 (2 CPU cores)
     "style_recognition_vs_real": (">=", 0.90),
     "skating_vs_real": ("<=", 1.20),
     "seams_above_p95_share": ("<=", 0.10),
+    "page_open_s": ("<=", 5.0),
 }
 
 
@@ -341,6 +345,32 @@ def latency(takes: list[Walked], fps: float, compute: float, window: int) -> dic
     }  # fmt: skip
 
 
+def page_open(ckpt, sampler: str, steps: int | None, eta: float | None) -> dict:
+    """`walkdiff play`'s page served on a free port, opened in headless Chromium: the seconds from the
+    browser's launch to the walker drawn (see the module docstring)."""
+    from walkdiff.autoregressive.play_page import open_page
+    from walkdiff.preview.browser import Browser, chromium_version, find_chromium
+
+    if find_chromium() is None:
+        return {"skipped": "no chromium on PATH", "page_open_s": None}
+    started = time.monotonic()
+    page = open_page(str(ckpt), sampler=sampler, steps=steps, eta=eta)
+    url = page.start(port=0)
+    served = time.monotonic() - started
+    try:
+        with Browser(url) as browser:
+            browser.wait_for("window.walkdiffPlay && walkdiffPlay.drawnBones > 0", timeout=60, every=0.02)
+            shown = time.monotonic() - browser.launched
+            bones = browser.evaluate("walkdiffPlay.drawnBones")
+    finally:
+        page.stop()
+    print(f"bench play: the page showed the walker {shown:.2f} s after the browser's launch", flush=True)
+    return {
+        "served_s": round(served, 3), "page_open_s": round(shown, 3), "bones_drawn": bones,
+        "browser": chromium_version(),
+    }  # fmt: skip
+
+
 def verdicts(values: dict) -> dict:
     out = {}
     for name, (sign, bar) in TARGETS.items():
@@ -394,6 +424,8 @@ def bench_play(
     print("bench play: style, skating and seams", flush=True)
     scorer = ClipScorer(evaluator)
     style, skating = recognition(scorer, takes, model)
+    print("bench play: the page in headless Chromium", flush=True)
+    shown = page_open(ckpt, sampler, steps, eta)
     result = {
         "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds, "hold_s": hold,
@@ -404,7 +436,7 @@ def bench_play(
             "frames_per_s_one_character": round(1000 / compute, 1), **timed,
         },
         "following": following(takes, fps, unit),
-        "style": style, "skating": skating, "seams": seams(takes, model, fps),
+        "style": style, "skating": skating, "seams": seams(takes, model, fps), "page": shown,
     }  # fmt: skip
     turns = result["following"]["heading_error_deg"]
     result["targets"] = verdicts({
@@ -414,7 +446,7 @@ def bench_play(
         "heading_error_deg_1s_after_90": turns.get("turn_90", {}).get("median"),
         "speed_error_1s_after": result["following"]["speed_error_relative"]["median"],
         "style_recognition_vs_real": style["vs_real"], "skating_vs_real": skating["vs_real"],
-        "seams_above_p95_share": result["seams"]["share_above_p95"],
+        "seams_above_p95_share": result["seams"]["share_above_p95"], "page_open_s": shown["page_open_s"],
     })  # fmt: skip
     result["machine"] = machine()
     result["elapsed_s"] = round(time.perf_counter() - started, 1)

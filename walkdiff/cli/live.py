@@ -1,5 +1,6 @@
-"""Walkers steered live: `control` (commands as JSON lines on stdin, poses out) and `play` (a script of key
-events and commands replayed into a take; the interactive page comes later under the same command)."""
+"""Walkers steered live: `control` (commands as JSON lines on stdin, poses out) and `play` (a local page to
+steer a walker with the keys and record takes; with --script, timed key events replayed headless into a
+take)."""
 
 from __future__ import annotations
 
@@ -61,15 +62,24 @@ def add_control(sub) -> None:
 
 def add_play(sub) -> None:
     p = sub.add_parser(
-        "play", help="steer a walker with keys: --script replays timed key events headless into a take"
-    )
+        "play", help="steer a walker with the keys on a local page and record takes; --script replays timed "
+        "key events headless into a take",
+    )  # fmt: skip
     walker_options(p)
     p.add_argument(
         "--script", default=None,
         help='JSON lines of timed key events {"t": 1.0, "key": "ArrowLeft", "down": true} and commands '
-        '{"t": 2.0, "direction": [x, z], "speed": 1.2, "style": "old"}',
+        '{"t": 2.0, "direction": [x, z], "speed": 1.2, "style": "old"}; without it, the page is served',
     )  # fmt: skip
-    p.add_argument("--out", default=None, help="output folder (take.bvh, take.glb, take.json)")
+    p.add_argument(
+        "--out", default=None, help="output folder (take.bvh, take.glb, take.json; the page's later "
+        "recordings take2.*, take3.*, ...); the page records only with it",
+    )  # fmt: skip
+    p.add_argument(
+        "--host", default="127.0.0.1",
+        help="the page's address (default 127.0.0.1: this machine only; 0.0.0.0 opens it to the network)",
+    )  # fmt: skip
+    p.add_argument("--port", type=count(0), default=8081, help="the page's port (default 8081; 0: any free)")
     p.add_argument(
         "--fps", type=number(0, above=True), default=None,
         help="frame rate of the written take (default the model's; it generates at its own)",
@@ -84,7 +94,17 @@ def run_control(args: argparse.Namespace) -> None:
 
 
 def run_play(args: argparse.Namespace) -> None:
-    from walkdiff.autoregressive.play import play
     from walkdiff.common.files import strict_json
 
-    print(json.dumps(strict_json(play(**keyword_options(args))), indent=2))
+    options = keyword_options(args)
+    if options["script"] is None:
+        from walkdiff.autoregressive.play_page import serve_page
+
+        del options["script"]
+        summary = serve_page(**options)
+    else:
+        from walkdiff.autoregressive.play import play
+
+        del options["host"], options["port"]
+        summary = play(**options)
+    print(json.dumps(strict_json(summary), indent=2))

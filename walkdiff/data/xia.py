@@ -38,7 +38,7 @@ VAL_CLIPS_PER_GROUP = 1
 # Skeleton profile settings the clips cannot tell: CMU units are 1/0.45 inch. Everything else (root,
 # feet, axes, contact thresholds) is found from the clips like any other dataset's. Foot speeds measured
 # over 72 clips at 120 fps: toes rest (< 2 units/s) or swing (20-60 units/s), with a trough at 4-6
-# units/s; the profile's rule (0.2 body heights/s, 0.02 body heights) gives 4.8 units/s and 0.48 units.
+# units/s; the profile's rule (0.326 leg lengths/s, 0.0326 leg lengths) gives 4.8 units/s and 0.48 units.
 PROFILE = {"units": 0.0254 / 0.45}
 # The published style-transfer protocol scores walking.
 PROTOCOL_CONTENTS = "walk"

@@ -12,7 +12,7 @@ Loss of the generator (the denoiser), per batch:
         + lambda_foot_height * w_t * ||P_feet,y(x0_hat) - P_feet,y(x0)||^2   (how high the feet swing)
         + lambda_position * w_t * ||(P - P_root)(x0_hat) - (P - P_root)(x0)||^2  (the pose's geometry)
 The position terms measure velocities in multiples of the skeleton profile's contact speed threshold
-(0.2 body heights/s: 4.8 units/s for Xia) and positions in contact heights (0.02 body heights), so they
+(0.326 leg lengths/s: 4.8 units/s for Xia) and positions in contact heights (0.0326 leg lengths), so they
 are unitless whatever the skeleton's size and units; a foot that slides at the
 threshold speed costs 1.
 The paper's losses constrain root and contact labels but not the legs, so its stance feet slide: the
@@ -214,7 +214,7 @@ class StyledMotionDiffusion(MotionModule):
         return torch.diff(positions, dim=1) * (self.spec["fps"] / self.contact_spec.speed_threshold)
 
     def _in_heights(self, lengths: torch.Tensor) -> torch.Tensor:
-        """Lengths in contact heights (0.02 body heights): the same numbers in any units."""
+        """Lengths in contact heights (0.0326 leg lengths): the same numbers in any units."""
         return lengths / self.contact_spec.height_threshold
 
     def _pose(self, positions: torch.Tensor) -> torch.Tensor:

@@ -21,16 +21,16 @@ change; the root and every other joint are untouched. A target out of reach gets
 from __future__ import annotations
 
 import numpy as np
-import roma
 import torch
 
 from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions
+from walkdiff.motion.rest_alignment import rotation_between
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 # A leg is never stretched to exactly its full length: the knee angle would lose its direction.
-_MAX_REACH = 0.999
+MAX_REACH = 0.999
 
 
 def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
@@ -68,15 +68,45 @@ def ankle_offsets(heel: np.ndarray, toe: np.ndarray, contacts: np.ndarray, blend
     return np.where(active[:, None], offset, weight[:, None] * offset[nearest])
 
 
-def _unit(v: torch.Tensor) -> torch.Tensor:
-    return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
-def _rotation_between(p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) shortest-arc rotations turning directions p onto q."""
-    axis = torch.cross(p, q, dim=-1)
-    angle = torch.atan2(axis.norm(dim=-1), (p * q).sum(-1))
-    return roma.rotvec_to_rotmat(_unit(axis) * angle.unsqueeze(-1))
+def _turn_about(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) rotations by `angle` (F,) about unit axes (F, 3) (Rodrigues)."""
+    k = np.zeros(axis.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def bend_leg(
+    hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, hip_rot: np.ndarray, targets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The world turns (F, 3, 3) to put on the hip and on the knee (left-multiplied on their world
+    rotations) so that a leg of world joint positions (F, 3) reaches `targets` (F, 3): the knee bends in
+    its own bend plane to get the hip-ankle distance right, then the hip swings the bent leg onto the
+    target; a target out of reach gets a straight leg pointing at it. `hip_rot`: the hip's world
+    rotations (F, 3, 3), for the bend axis of frames whose leg is straight."""
+    a, b, c = hip, knee, ankle
+    upper, lower = np.linalg.norm(b - a, axis=-1), np.linalg.norm(c - b, axis=-1)
+    reach = np.clip(
+        np.linalg.norm(targets - a, axis=-1), np.abs(upper - lower) + 1e-6, MAX_REACH * (upper + lower)
+    )
+    cos_now = np.sum((a - b) * (c - b), axis=-1) / (upper * lower)
+    cos_new = (upper**2 + lower**2 - reach**2) / (2 * upper * lower)
+    bend = np.arccos(np.clip(cos_new, -1, 1)) - np.arccos(np.clip(cos_now, -1, 1))
+    normal = np.cross(a - b, c - b)
+    size = np.linalg.norm(normal, axis=-1)
+    # A straight leg has no bend plane: use the hip-frame axis of the frame bent the most.
+    reference = int(size.argmax())
+    fallback = hip_rot @ (hip_rot[reference].T @ _unit(normal[reference]))
+    axis = _unit(np.where((size < 1e-6 * upper * lower)[:, None], fallback, normal))
+    knee_turn = _turn_about(axis, bend)
+    bent = b + np.einsum("fij,fj->fi", knee_turn, c - b)
+    swing = rotation_between(bent - a, targets - a)
+    return swing, swing @ knee_turn
 
 
 def two_bone_ik(
@@ -87,44 +117,25 @@ def two_bone_ik(
     targets: np.ndarray,
     frames: np.ndarray,
 ) -> np.ndarray:
-    """Local rotations (F, J, 3, 3) with the leg ending at `ankle` bent to reach `targets` (F, 3).
-
-    The knee is the ankle's parent and the hip the knee's. Only `frames` (a boolean (F,) mask) change.
-    """
+    """Local rotations (F, J, 3, 3) with the leg ending at `ankle` bent to reach `targets` (F, 3)
+    (`bend_leg`). The knee is the ankle's parent and the hip the knee's. Only `frames` (a boolean (F,)
+    mask) change; the foot keeps its world orientation."""
     knee = int(parents[ankle])
     hip = int(parents[knee])
-    rot = torch.tensor(rotations)
-    world, world_rot = forward_kinematics(rot, torch.tensor(positions), parents, return_rotations=True)
-    a, b, c = world[:, hip], world[:, knee], world[:, ankle]
-    target = torch.tensor(targets)
-    upper, lower = (b - a).norm(dim=-1), (c - b).norm(dim=-1)
-
-    # Knee: bend so that |ankle - hip| becomes |target - hip|, about the leg's own bend axis.
-    reach = (target - a).norm(dim=-1).clamp((upper - lower).abs() + 1e-6, _MAX_REACH * (upper + lower))
-    cos_now = ((a - b) * (c - b)).sum(-1) / (upper * lower)
-    cos_new = (upper**2 + lower**2 - reach**2) / (2 * upper * lower)
-    bend = torch.acos(cos_new.clamp(-1, 1)) - torch.acos(cos_now.clamp(-1, 1))
-    normal = torch.cross(a - b, c - b, dim=-1)
-    # A straight leg has no bend plane: use the hip-frame axis of the frame bent the most.
-    reference = int(normal.norm(dim=-1).argmax())
-    hip_axis = world_rot[reference, hip].T @ _unit(normal[reference])
-    fallback = world_rot[:, hip] @ hip_axis
-    straight = normal.norm(dim=-1) < 1e-6 * upper * lower
-    axis = _unit(torch.where(straight[:, None], fallback, normal))
-    knee_turn = roma.rotvec_to_rotmat(axis * bend.unsqueeze(-1))
-    c_bent = b + (knee_turn @ (c - b).unsqueeze(-1)).squeeze(-1)
-
-    # Hip: swing the bent leg so the ankle points at the target.
-    swing = _rotation_between(c_bent - a, target - a)
-    hip_world = swing @ world_rot[:, hip]
-    knee_world = swing @ knee_turn @ world_rot[:, knee]
-    parent_world = world_rot[:, int(parents[hip])]
-    out = rot.clone()
-    out[:, hip] = parent_world.transpose(-1, -2) @ hip_world
-    out[:, knee] = hip_world.transpose(-1, -2) @ knee_world
-    out[:, ankle] = knee_world.transpose(-1, -2) @ world_rot[:, ankle]  # the foot keeps its orientation
-    mask = torch.from_numpy(np.asarray(frames, dtype=bool))
-    return torch.where(mask[:, None, None, None], out, rot).numpy()
+    world, world_rot = forward_kinematics(
+        torch.tensor(rotations), torch.tensor(positions), parents, return_rotations=True
+    )
+    world, world_rot = world.double().numpy(), world_rot.double().numpy()
+    hip_turn, knee_turn = bend_leg(
+        world[:, hip], world[:, knee], world[:, ankle], world_rot[:, hip], np.asarray(targets, np.float64)
+    )
+    hip_world, knee_world = hip_turn @ world_rot[:, hip], knee_turn @ world_rot[:, knee]
+    out = np.array(rotations, copy=True)
+    out[:, hip] = np.swapaxes(world_rot[:, int(parents[hip])], -1, -2) @ hip_world
+    out[:, knee] = np.swapaxes(hip_world, -1, -2) @ knee_world
+    out[:, ankle] = np.swapaxes(knee_world, -1, -2) @ world_rot[:, ankle]
+    mask = np.asarray(frames, dtype=bool)[:, None, None, None]
+    return np.where(mask, out, rotations).astype(np.asarray(rotations).dtype)
 
 
 def fix_feet(motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int = 3) -> Motion:

@@ -506,3 +506,18 @@ def _check_chains(skeleton: Skeleton, m: HumanoidMap) -> None:
         if joint in seen and seen[joint] != role:
             raise WalkdiffError(f"humanoid map: joint {joint!r} is both {seen[joint]} and {role}")
         seen[joint] = role
+
+
+def leg_length(skeleton: Skeleton, hmap: HumanoidMap) -> float:
+    """Mean over both legs of the bone lengths from the thigh down to the foot, in the rig's units."""
+    total = []
+    for side in SIDES:
+        joint, top = skeleton.index(hmap.joint(f"{side}_foot")), skeleton.index(hmap.joint(f"{side}_thigh"))
+        length = 0.0
+        while joint != top:
+            length += float(np.linalg.norm(skeleton.offsets[joint]))
+            joint = int(skeleton.parents[joint])
+        total.append(length)
+    if not np.mean(total) > 0:
+        raise WalkdiffError("the legs have no length (thigh and foot at one place)")
+    return float(np.mean(total))

@@ -15,9 +15,13 @@
   (`walkdiff.motion.posed_frames`).
 - units (metres per unit) from the body height when it is a human height in m, cm, mm or inches;
   otherwise estimated for a 1.7 m body and said so.
-- contact thresholds from the body height: speed `CONTACT_SPEED` heights/s (per frame: that over the
-  frame rate), height `CONTACT_HEIGHT` heights. On Xia (24.1 units tall) that is 4.8 units/s and
-  0.48 units, within 2% of the thresholds measured by hand on its foot speeds.
+- contact thresholds from the legs' length (thigh to foot, by the humanoid map): speed `CONTACT_SPEED`
+  leg lengths/s (per frame: that over the frame rate), height `CONTACT_HEIGHT` leg lengths. On Xia
+  (legs 14.6 units) that is 4.8 units/s and 0.48 units, within 2% of the thresholds measured by hand on
+  its foot speeds. Legs, not the body height: a foot's speed and lift go with the stride, and rigs
+  differ in how much of their height is legs (Xia's legs are 0.61 of it, ZEGGS' and the Mixamo-like
+  rig's 0.49), so the same walk on two rigs gets the same contacts. A rig without recognisable legs
+  takes `CONTACT_SPEED_HEIGHTS` and `CONTACT_HEIGHT_HEIGHTS` of its body height, and says so.
 
 Also the axis geometry a profile uses to turn a clip into its canonical frame.
 """
@@ -30,6 +34,7 @@ import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion import posed_frames as posed
+from walkdiff.motion.humanoid import humanoid_map, leg_length
 from walkdiff.motion.mirror import find_mirror_pairs
 from walkdiff.motion.posed_frames import (
     ancestors,
@@ -42,8 +47,10 @@ from walkdiff.motion.posed_frames import (
 from walkdiff.motion.posed_frames import snap_axis as _snap
 from walkdiff.motion.skeleton import Motion, Skeleton
 
-CONTACT_SPEED = 0.2  # body heights per second
-CONTACT_HEIGHT = 0.02  # body heights above the foot's own floor
+CONTACT_SPEED = 0.326  # leg lengths per second
+CONTACT_HEIGHT = 0.0326  # leg lengths above the foot's own floor
+CONTACT_SPEED_HEIGHTS = 0.2  # body heights per second, for a rig whose legs are not found
+CONTACT_HEIGHT_HEIGHTS = 0.02  # body heights
 ASSUMED_HEIGHT_M = 1.7  # when the units cannot be told from the body height
 LOST_TRANSLATION = 1e-3  # body heights: translation below the root beyond this is motion the features lose
 
@@ -483,18 +490,29 @@ class _Detection:
     def contact_thresholds(self, height: float) -> tuple[float, float]:
         """The speed (units/s) and height (units) below which a foot is planted."""
         speed, lift = self.overrides.get("contact_speed"), self.overrides.get("contact_height")
-        speed = _positive(speed, "profile.contact_speed") if speed is not None else CONTACT_SPEED * height
-        lift = _positive(lift, "profile.contact_height") if lift is not None else CONTACT_HEIGHT * height
-        fps = self.motion.fps
-        self.found["contacts"] = (
-            "config"
-            if "contact_speed" in self.overrides or "contact_height" in self.overrides
-            else (
-                f"{CONTACT_SPEED} body heights/s ({speed / fps:.3g} units per frame at {fps:g} fps), "
-                f"{CONTACT_HEIGHT} body heights"
-            )
+        if speed is not None or lift is not None:
+            self.found["contacts"] = "config"
+        legs = self.leg_length()
+        scale, unit = (legs, "leg lengths") if legs else (height, "body heights")
+        fractions = (
+            (CONTACT_SPEED, CONTACT_HEIGHT) if legs else (CONTACT_SPEED_HEIGHTS, CONTACT_HEIGHT_HEIGHTS)
         )
+        speed = _positive(speed, "profile.contact_speed") if speed is not None else fractions[0] * scale
+        lift = _positive(lift, "profile.contact_height") if lift is not None else fractions[1] * scale
+        fps = self.motion.fps
+        if "contacts" not in self.found:
+            self.found["contacts"] = (
+                f"{fractions[0]} {unit}/s ({speed / fps:.3g} units per frame at {fps:g} fps), "
+                f"{fractions[1]} {unit}" + (f" (legs {legs:.4g} units)" if legs else " (no legs found)")
+            )
         return speed, lift
+
+    def leg_length(self) -> float | None:
+        """The legs' length by the humanoid map (thigh to foot); None for a rig without legs."""
+        try:
+            return leg_length(self.skeleton, humanoid_map(self.motion.slice(0, 1)))
+        except WalkdiffError:
+            return None
 
     def check_root_motion(self, root: int, up: np.ndarray, height: float) -> None:
         """Notes on joints above the root that move (export rebuilds their path, not their turn), on

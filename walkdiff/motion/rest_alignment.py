@@ -12,7 +12,9 @@ So a joint turns in the world as its driver turns away from its own reference po
 drives an A-pose target, local frames turned any way, and the full rotation (twist included) is carried,
 which keeps hands and feet facing where the source's face. S(f, j) is a swing for chains the two rigs
 divide differently: it turns the bone onto the source's chord over the same share of the chain's
-length (`Drive.chord`), so a spine of 3 joints drives one of 5 without bending it elsewhere.
+length (`Drive.chord`), so a spine of 3 joints drives one of 5 without bending it elsewhere. The pelvis
+has one too when the source's hips move against it (CMU's hip joints) and the target's do not: its
+chord is the source's live hip line, which the target's thighs then sit on.
 
 Correspondence (`_links`): the chains of the humanoid map (pelvis-neck-head-head's end, pelvis-thigh-
 shin-foot-toe-toe's end, spine-clavicle-upper arm-forearm-hand-hand's end, hand-finger-finger's end),
@@ -213,13 +215,15 @@ def _finger(ref: Reference, key: str) -> list[int]:
 
 
 def _first_away(ref: Reference, points: list[Point]) -> np.ndarray | None:
-    """The first of `points` at a distance from the first one: a direction rigid with the start joint
-    where the rig has one (its own child), else the nearest there is."""
+    """The first of `points` at a distance from the first one, less the first: a direction rigid with
+    the start joint where the rig has one (its own child), else the nearest there is."""
+    point = _first_point_away(ref, points)
+    return None if point is None else ref.at(point) - ref.at(points[0])
+
+
+def _first_point_away(ref: Reference, points: list[Point]) -> Point | None:
     start = ref.at(points[0])
-    for p in points[1:]:
-        if np.linalg.norm(ref.at(p) - start) > TINY * ref.size:
-            return ref.at(p) - start
-    return None
+    return next((p for p in points[1:] if np.linalg.norm(ref.at(p) - start) > TINY * ref.size), None)
 
 
 def _end(ref: Reference, joint: int, side: str | None = None) -> Point | None:
@@ -409,16 +413,36 @@ def _arm_lateral(ref: Reference) -> np.ndarray | None:
     return lateral if np.linalg.norm(lateral) > TINY * ref.size else None
 
 
-def _pelvis_pair(ref: Reference) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The pelvis's directions in one rig: across the hips (left minus right, each the first point
-    away from the pelvis down its leg), then up its spine (the first point away along it)."""
+def _hip_points(ref: Reference) -> list[Point | None]:
+    """Left and right hip: the first point away from the pelvis down each leg."""
     pelvis = ref.index("pelvis")
-    legs = [
-        _first_away(ref, [(j, None) for j in path_between(ref.skeleton, pelvis, ref.index(f"{s}_foot"))])
-        for s in SIDES
-    ]
+    legs = [path_between(ref.skeleton, pelvis, ref.index(f"{s}_foot")) for s in SIDES]
+    return [_first_point_away(ref, [(j, None) for j in leg]) for leg in legs]
+
+
+def _loose_hips(ref: Reference) -> bool:
+    """Whether a hip moves against the pelvis: it hangs from a joint of its own (CMU's hip joints)."""
+    pelvis = ref.index("pelvis")
+    return any(p is not None and int(ref.skeleton.parents[p[0]]) != pelvis for p in _hip_points(ref))
+
+
+def _pelvis_pair(ref: Reference) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The pelvis's directions in one rig: across the hips (left minus right, `_hip_points`), then up
+    its spine (the first point away along it)."""
+    hips = _hip_points(ref)
     spine = _first_away(ref, [(j, None) for j in _central(ref)])
-    return (None if legs[0] is None or legs[1] is None else legs[0] - legs[1]), spine
+    across = None if None in hips else ref.at(hips[0]) - ref.at(hips[1])
+    return across, spine
+
+
+def _pelvis_chord(src: Reference, tgt: Reference) -> tuple[Chain, float, float] | None:
+    """The source's live hip line for the target's pelvis to follow when the source's hips move against
+    its pelvis and the target's do not (their line would otherwise lean as the source's pelvis does,
+    not as its hips do: 2 degrees median on Xia's walks); None otherwise."""
+    if not _loose_hips(src) or _loose_hips(tgt) or None in _hip_points(src):
+        return None
+    left, right = _hip_points(src)
+    return Chain.of(src, [right, left]), 0.0, 1.0
 
 
 def _hand_pair(src: Reference, tgt: Reference, side: str) -> tuple[tuple, tuple]:
@@ -451,7 +475,8 @@ def alignment(src: Reference, tgt: Reference) -> tuple[list[Drive], list[Link]]:
     specs: dict[int, _Spec] = {}
     for name, (primary, secondary) in hubs.items():
         t = tgt.index(name)
-        specs[t] = _Spec(t, src.index(name), _pair(primary), _pair(secondary))
+        chord = _pelvis_chord(src, tgt) if name == "pelvis" and _pair(primary) is not None else None
+        specs[t] = _Spec(t, src.index(name), _pair(primary), _pair(secondary), chord)
     lateral = _pair((_arm_lateral(src), _arm_lateral(tgt)))
     chest = {_attach(tgt, side) for side in SIDES}
     for link in links:

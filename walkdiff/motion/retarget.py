@@ -13,13 +13,19 @@ the translation of the joint that carries its root motion change. Per clip (`Ret
    source, each in its own units: units convert with it); the up axes convert through each rig's
    profile (canonical Y up). A vertical shift then puts the target's planted feet at the source's
    planted heights (times the ratio): the rigs' hips may sit higher or lower above their thighs.
-3. feet: contacts are measured on the source with its profile's thresholds and kept on the target by
-   the foot clean-up's two-bone IK (`walkdiff.motion.footfix`). `feet="follow"` (default) moves each
-   planted foot exactly as the source's moved, scaled: it adds no sliding of its own, and a target of
-   the same proportions reproduces the source exactly. `"pin"` holds every planted foot still on its
-   contact, the clean-up's own rule: it removes the source's sliding too (on Xia, half the mean slide
-   speed) but jumps a little where heel and toe contacts change. `"off"` leaves the legs as the
-   rotations put them.
+3. feet: contacts are measured on the source with its profile's thresholds. With `feet="follow"`
+   (default) each foot walks the source's foot path, scaled, by the foot clean-up's two-bone IK
+   (`walkdiff.motion.footfix.bend_leg`) on every frame: the ankle goes as high as the source's
+   (each joint at its own height above the floor), and along the ground the foot is anchored on
+   whichever of heel and toe is lower, so the joint on the ground goes where the source's goes whatever
+   the feet's lengths (`follow_goals`); the rig's own stance width is kept, changing only while a foot
+   is in the air. It adds no sliding of its own (the skate ratio with each rig's own profile stays the
+   source's), and a target of the same proportions reproduces the source exactly. Where a leg could not
+   reach a planted goal (a target whose hips sit higher over its feet, pushing off), the body is
+   lowered as much as that needs. `"pin"` also holds every planted foot still on its contact, the
+   clean-up's own rule: it removes the source's sliding too (on Xia, half the mean slide speed) but
+   jumps a little where heel and toe contacts change. `"off"` leaves the legs as the rotations put
+   them.
 
 A `Retargeter` does the per-rig work once (profiles, maps, reference poses, per-joint constants) and
 then converts any clip of the source skeleton; `retarget` is the one-call form.
@@ -33,8 +39,8 @@ import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import single_thread
-from walkdiff.motion.footfix import ankle_offsets, two_bone_ik
-from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map
+from walkdiff.motion.footfix import MAX_REACH, ankle_offsets, bend_leg, contact_runs
+from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map, leg_length
 from walkdiff.motion.posed_frames import ancestors, rest_pose_problem
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
@@ -152,6 +158,7 @@ class Retargeter:
         feet = [(f"{s}_foot", f"{s}_toe") for s in SIDES]
         self.source_feet = [_contact_joint(src, role) for pair in feet for role in pair]
         self.target_feet = [_contact_joint(tgt, role) for pair in feet for role in pair]
+        self.source_hips = [src.index(f"{side}_thigh") for side in SIDES]
         p = self.source_profile
         names = self.source_skeleton.names
         self.contact_spec = ContactSpec(
@@ -183,7 +190,7 @@ class Retargeter:
     # ------------------------------------------------------------ per clip
 
     def __call__(self, motion: Motion) -> RetargetResult:
-        with single_thread():  # the foot IK's small torch operations: threads only wait
+        with single_thread():  # contact detection's small torch operations: threads only wait
             return self._retarget(motion)
 
     def _retarget(self, motion: Motion) -> RetargetResult:
@@ -208,7 +215,8 @@ class Retargeter:
         self._shift(local_pos, world_rot, shift)
         feet[..., 1] += shift
         if self.feet != "off":
-            self._fix_feet(local_rot, local_pos, feet, self.leg_ratio * source_feet, contacts, motion.fps)
+            scaled = self.leg_ratio * positions[:, self.source_feet + self.source_hips]
+            self._fix_feet(local_rot, local_pos, world_rot, feet, scaled, contacts, motion.fps)
         inverse = self.target_ref.turn.T
         local_rot[:, 0] = inverse @ local_rot[:, 0]
         local_pos[:, 0] = local_pos[:, 0] @ inverse.T
@@ -266,33 +274,109 @@ class Retargeter:
         delta[:, 1] = shift
         self._move_carrier(local_pos, world_rot, delta)
 
-    def _fix_feet(self, local_rot, local_pos, feet, source_feet, contacts, fps) -> None:
-        """Two-bone IK on each leg that has one, towards the planted place of its heel (see the module
-        docstring for `pin` and `follow`)."""
+    def _fix_feet(self, local_rot, local_pos, world_rot, feet, source, contacts, fps) -> None:
+        """Two-bone IK on each leg that has one, its ankle onto `follow_goals` (pinned on contacts for
+        `pin`), the body lowered first where a leg could not reach (`_reach_drop`); the foot keeps its
+        world turn. `source` (F, 6, 3): the source's heels and toes (as `feet`) and hips, scaled."""
         blend = max(1, int(round(BLEND_SECONDS * fps)))
+        band = self.leg_ratio * self.source_profile.contact_height
         tiny = 1e-9 * self.target_ref.size
+        parents = self.target_skeleton.parents
+        legs = []
         for side, chain in enumerate(self.legs):
             if isinstance(chain, str):
                 continue
-            heel, toe = feet[:, 2 * side], feet[:, 2 * side + 1]
-            on = contacts[:, 2 * side : 2 * side + 2]
-            if self.feet == "follow":
-                offset = ankle_offsets(
-                    heel - source_feet[:, 2 * side], toe - source_feet[:, 2 * side + 1], on, blend
-                )
-            else:
-                offset = ankle_offsets(heel, toe, on, blend)
-            moved = np.abs(offset).sum(-1) > tiny
-            if not moved.any():
-                continue
-            # Only the frames it moves go through the IK (it costs a forward pass over the leg).
-            rows = np.flatnonzero(moved)
-            parents = np.arange(len(chain)) - 1
-            leg_rot, leg_pos = local_rot[rows][:, chain], local_pos[rows][:, chain]
-            solved = two_bone_ik(
-                leg_rot, leg_pos, parents, len(chain) - 1, (heel + offset)[rows], np.ones(len(rows), bool)
-            )
-            local_rot[rows[:, None], np.array(chain[-3:])[None]] = solved[:, -3:]
+            pair = slice(2 * side, 2 * side + 2)
+            heel, toe, on = feet[:, 2 * side], feet[:, 2 * side + 1], contacts[:, pair]
+            hip = _positions_of(self.target_skeleton, local_pos, world_rot, [chain[-3]])[:, 0]
+            goal = follow_goals(heel, toe, source[:, pair], hip - source[:, 4 + side], on, band)
+            if self.feet == "pin":
+                goal = goal + ankle_offsets(goal, goal + toe - heel, on, blend)
+            legs.append((chain, heel, goal))
+        drop = self._reach_drop(local_pos, world_rot, legs, (contacts > 0.5).any(axis=1))
+        if drop > 0:
+            self._shift(local_pos, world_rot, -drop)
+        for chain, heel, goal in legs:
+            thigh, shin, foot = chain[-3:]
+            rows = np.flatnonzero(np.linalg.norm(goal - heel, axis=-1) > tiny)
+            if not rows.size:
+                continue  # a target of the source's own proportions: nothing to bend
+            rot = world_rot[rows]
+            places = _positions_of(self.target_skeleton, local_pos[rows], rot, [thigh, shin, foot])
+            hip_turn, knee_turn = bend_leg(*places.transpose(1, 0, 2), rot[:, thigh], goal[rows])
+            hip_world, knee_world = hip_turn @ rot[:, thigh], knee_turn @ rot[:, shin]
+            local_rot[rows, thigh] = np.swapaxes(rot[:, parents[thigh]], -1, -2) @ hip_world
+            local_rot[rows, shin] = np.swapaxes(hip_world, -1, -2) @ knee_world
+            local_rot[rows, foot] = np.swapaxes(knee_world, -1, -2) @ rot[:, foot]
+            world_rot[rows, thigh], world_rot[rows, shin] = hip_world, knee_world
+
+    def _reach_drop(self, local_pos, world_rot, legs, planted: np.ndarray) -> float:
+        """How far to lower the whole body so that every planted foot's goal is in its leg's reach: a
+        target whose hips sit higher over its feet than the source's (scaled) would otherwise stand on
+        tiptoe where the source's legs stretch (pushing off). A leg reaches at least as far as its
+        ankle stands from its hip now."""
+        if not planted.any():
+            return 0.0
+        drop = 0.0
+        for chain, _, goal in legs:
+            places = _positions_of(self.target_skeleton, local_pos[planted], world_rot[planted], chain[-3:])
+            hip, knee, ankle = places.transpose(1, 0, 2)
+            length = np.linalg.norm(knee - hip, axis=-1) + np.linalg.norm(ankle - knee, axis=-1)
+            reach = np.maximum(MAX_REACH * length, np.linalg.norm(ankle - hip, axis=-1))
+            across = np.linalg.norm((goal[planted] - hip)[:, [0, 2]], axis=-1)
+            above = hip[:, 1] - goal[planted, 1]
+            drop = max(drop, float((above - np.sqrt(np.maximum(reach**2 - across**2, 0.0))).max()))
+        return drop
+
+
+def follow_goals(
+    heel: np.ndarray,
+    toe: np.ndarray,
+    source: np.ndarray,
+    stance: np.ndarray,
+    contacts: np.ndarray,
+    band: float,
+) -> np.ndarray:
+    """(F, 3) ankle goals of one target foot that make it walk the source's foot path (`source` (F, 2,
+    3): its heel and toe, scaled). The ankle goes as high as the source's. Along the ground the foot is
+    anchored on the lower of the two: the source's heel path while the heel is the lower (a heel
+    strike), the source's toe path less the target's own heel-to-toe while the toe is (the foot rolling
+    over it), in between within `band` of each other (a flat foot); so the joint touching the ground
+    goes where the source's goes, whatever the feet's lengths.
+
+    Where each rig puts its feet under itself differs (hips wider or narrower, an ankle higher above its
+    sole): each joint keeps its own height above the floor (`heel`, `toe` (F, 3): the target's as its
+    rotations put them), and the path moves sideways by `stance` (F, 3), how far the target's hip is
+    from the source's (scaled): held still over each contact (`contacts` (F, 2); its mean there, so a
+    planted foot moves only as the source's does) and changing between contacts, in the air."""
+    lift, floor = np.zeros((2, 3)), np.zeros(2)
+    for k, joint in enumerate((heel, toe)):
+        planted = contacts[:, k] > 0.5
+        frames = planted if planted.any() else slice(None)
+        lift[k, 1] = np.median(joint[frames, 1] - source[frames, k, 1])
+    shift = np.zeros_like(stance)
+    shift[:, [0, 2]] = _held_over_runs(stance[:, [0, 2]], (contacts > 0.5).any(axis=1))
+    by_heel = source[:, 0] + lift[0] + shift
+    by_toe = source[:, 1] + lift[1] + shift - (toe - heel)
+    above = source[..., 1] - floor
+    weight = np.clip(0.5 + (above[:, 0] - above[:, 1]) / (2 * band), 0.0, 1.0)
+    goal = by_heel + weight[:, None] * (by_toe - by_heel)
+    goal[:, 1] = by_heel[:, 1]
+    return goal
+
+
+def _held_over_runs(values: np.ndarray, planted: np.ndarray) -> np.ndarray:
+    """(F, k) `values` replaced by their mean over each run of `planted` frames and interpolated
+    linearly between runs (held at the first and last run's outside them); as given when nothing is
+    planted."""
+    runs = contact_runs(planted)
+    if not runs:
+        return values
+    held = np.empty_like(values)
+    for start, stop in runs:
+        held[start:stop] = values[start:stop].mean(axis=0)
+    frames = np.arange(len(values))
+    return np.stack([np.interp(frames, frames[planted], held[planted, i]) for i in range(values.shape[1])], 1)
 
 
 def retarget(
@@ -404,18 +488,10 @@ def _source_reference(source: Motion, hmap: HumanoidMap, turn: np.ndarray, frame
 
 
 def _leg_length(ref: Reference) -> float:
-    """Mean over both legs of the bone length from the thigh down to the foot."""
-    skeleton, total = ref.skeleton, []
-    for side in SIDES:
-        joint, top = ref.index(f"{side}_foot"), ref.index(f"{side}_thigh")
-        length = 0.0
-        while joint != top:
-            length += float(np.linalg.norm(skeleton.offsets[joint]))
-            joint = int(skeleton.parents[joint])
-        total.append(length)
-    if not np.mean(total) > 0:
-        raise WalkdiffError("retarget: the legs have no length (thigh and foot at one place)")
-    return float(np.mean(total))
+    try:
+        return leg_length(ref.skeleton, ref.hmap)
+    except WalkdiffError as error:
+        raise WalkdiffError(f"retarget: {error.reason}") from None
 
 
 def _carrier(skeleton: Skeleton, pelvis: int) -> int:
