@@ -529,13 +529,15 @@ def write_labels(
     kind: str = "csv",
     splits: Mapping[str, str] | None = None,
     originals: Mapping[str, str] | None = None,
+    contents: Mapping[str, str] | None = None,
 ) -> Path:
     """Write `labels.csv` or `labels.json` in `folder`: one row per disguised file, columns file, style,
     content (and split when `splits` is given), rows in file order.
 
     `files` maps each original Xia file name (which gives the labels) to its disguised name (the `file`
     column); `splits` maps original names to a split name; `originals` maps a key of `files` that is not
-    a Xia name (a tempo copy) to its Xia file. JSON is a list of row objects.
+    a Xia name (a tempo copy) to its Xia file; `contents` maps original names to a content label instead
+    of their Xia group. JSON is a list of row objects.
     """
     originals = originals or {}
     if kind not in ("csv", "json"):
@@ -545,7 +547,7 @@ def write_labels(
     for key, disguised in sorted(files.items(), key=lambda item: item[1]):
         original = originals.get(key, key)
         style, content = xia_labels(original)
-        row = {"file": disguised, "style": style, "content": content}
+        row = {"file": disguised, "style": style, "content": (contents or {}).get(original, content)}
         if splits is not None:
             row["split"] = splits[original]
         rows.append(row)
@@ -586,6 +588,7 @@ def disguised_folder(
     precision: int | None = None,
     seed: int = 0,
     speeds: Sequence[float] = (1.0,),
+    contents: Mapping[str, str] | None = None,
 ) -> DisguiseRecord:
     """Write the Xia `clips` (file names, with or without .bvh) through the same `steps` into `out_dir`.
 
@@ -593,7 +596,8 @@ def disguised_folder(
     number tells a label); the manifest (`write_labels`, kind `labels`) holds the labels. Values are
     written with `precision` decimals (default: `default_precision` of the chain's unit scale). With
     several `speeds`, every clip is written once per tempo (`tempo`), each copy in its clip's split: a
-    larger folder of the same kind. Returns the record (identical for every clip; a clip whose frame step
+    larger folder of the same kind. `contents`: content labels by Xia file name, instead of the groups.
+    Returns the record (identical for every clip; a clip whose frame step
     or names differ raises).
     """
     names = [Path(c).name if str(c).endswith(".bvh") else Path(c).name + ".bvh" for c in clips]
@@ -618,8 +622,44 @@ def disguised_folder(
         write_bvh(out_dir / record.files[copy], motion, precision=record.precision)
     if record is None:
         raise ValueError("no clips given")
-    record.manifest = write_labels(out_dir, record.files, labels, splits, originals)
+    record.manifest = write_labels(out_dir, record.files, labels, splits, originals, contents)
     return record
+
+
+STRAIGHT_DEG = 20.0  # a walk turning less than this over the clip is labelled straight (`turn_labels`)
+
+
+def turn_labels(xia_dir: str | Path, clips: Iterable, degrees: float) -> tuple[dict, dict]:
+    """Content labels and splits by how each walk really turns (Xia's content ids do not tell: about half
+    of `walk_lturn_l1` turns right): `walk-turn-left` beyond `degrees` to the body's left over the clip,
+    `walk-turn-right` beyond it to the right, `walk` within `STRAIGHT_DEG`; clips in between are left
+    out. Split: the first clip by name of each style and label with three or more is the test clip.
+    Returns ({file: label}, {file: split})."""
+    from walkdiff.data.xia import PROFILE
+    from walkdiff.motion.profile import SkeletonProfile
+    from walkdiff.motion.representation import FeatureLayout, encode
+
+    labels: dict[str, str] = {}
+    profile = None
+    for clip in sorted(clips, key=lambda c: c.name):
+        motion = read_bvh(Path(xia_dir) / f"{clip.name}.bvh")
+        profile = profile or SkeletonProfile.detect(motion, PROFILE)
+        heading = encode(profile.to_canonical(motion), profile)[:, FeatureLayout.heading_vel.start]
+        turn = math.degrees(float(heading.sum()))
+        label = (
+            "walk-turn-left" if turn > degrees else "walk-turn-right" if turn < -degrees
+            else "walk" if abs(turn) < STRAIGHT_DEG else None
+        )  # fmt: skip
+        if label is not None:
+            labels[f"{clip.name}.bvh"] = label
+    groups: dict[tuple[str, str], list[str]] = {}
+    for name, label in labels.items():
+        groups.setdefault((xia_labels(name)[0], label), []).append(name)
+    splits = {name: "train" for name in labels}
+    for names in groups.values():
+        if len(names) >= 3:
+            splits[names[0]] = "test"
+    return labels, splits
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -642,13 +682,24 @@ def main(argv: Sequence[str] | None = None) -> None:
         default="1",
         help="tempo copies of every clip, comma-separated (e.g. 0.8,1,1.2: 3x the data)",
     )
+    parser.add_argument(
+        "--turns",
+        type=float,
+        default=None,
+        help="label the walks by how they turn instead (walk-turn-left / walk-turn-right beyond this many "
+        f"degrees, walk within {STRAIGHT_DEG:g}, the others left out), a test clip per style and label",
+    )
     args = parser.parse_args(argv)
     clips = xia.list_clips(Path(args.xia_dir))
     splits = xia.split_clips(clips, ContentSelection.parse(args.contents, xia.GROUPS))
     split_of = {f"{c.name}.bvh": split for split, members in splits.items() for c in members}
+    contents = None
+    if args.turns is not None:
+        walks = [c for members in splits.values() for c in members if xia.GROUPS[c.content] == "walk"]
+        contents, split_of = turn_labels(args.xia_dir, walks, args.turns)
     record = disguised_folder(
         args.xia_dir, args.out_dir, sorted(split_of), args.steps.split(","), splits=split_of,
-        speeds=[float(s) for s in args.speeds.split(",")],
+        speeds=[float(s) for s in args.speeds.split(",")], contents=contents,
     )  # fmt: skip
     print(f"wrote {len(record.files)} disguised clips and {record.manifest} ({', '.join(record.steps)})")
 

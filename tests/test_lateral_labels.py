@@ -257,3 +257,52 @@ def test_a_left_turn_without_a_right_turn_label_loses_its_mirrored_copies(turnin
             sum(n.endswith("#mirror") for _, n, _ in dm.split_features("train", mirrored=True))
             == copies_expected
         )
+
+
+def test_bench_turns_measures_sampled_and_transferred_turns(turning, tmp_path):
+    """`walkdiff bench turns` on a tiny generator trained briefly on the turning clips (a left and a right
+    turn held out to test): each side label gets its rows. Its training windows turn the label's way,
+    mirrored copies included (unswapped copies or a sign error would put half of them the other way);
+    both test turns are transferred into every other style."""
+    import tiny
+
+    from walkdiff.bench.turns import bench_turns, format_turns
+
+    source, record = turning
+    folder = tmp_path / "turns"
+    folder.mkdir()
+    for take in record.files.values():
+        shutil.copyfile(source / take, folder / take)
+    held = {LEFT[0], RIGHT[0], STRAIGHT[-1]}
+    rows = ["file,style,content,split"] + [
+        f"{take},{stem.split('_')[0]},{LABELS.get(stem, 'walk')},{'test' if stem in held else 'train'}"
+        for stem, take in ((name.removesuffix(".bvh"), take) for name, take in sorted(record.files.items()))
+    ]
+    (folder / "labels.csv").write_text("\n".join(rows) + "\n")
+    ckpt = tiny.generator(
+        tmp_path, epochs=2, name="turner", data_options={"dataset": "folder", "root": str(folder),
+                                                         "contents": "all", "mirror": True},
+    )  # fmt: skip
+    result = bench_turns(ckpt, tmp_path / "turns.json", num=1, frames=24, steps=2)
+    assert set(result["labels"]) == {"walk-turn-left", "walk-turn-right"}
+    styles = {stem.split("_")[0] for stem in LEFT + RIGHT + STRAIGHT}
+    for label, row in result["labels"].items():
+        assert row["side"] == label.rsplit("-", 1)[1]
+        assert row["training_windows"]["share"] >= 0.9 and row["training_clips"]["share"] == 1.0
+        assert row["training_clips"]["count"] == 4  # two of its own, two mirrored of the other side
+        assert set(row["sampled"]) == styles and all(r["count"] == 1 for r in row["sampled"].values())
+        assert 0.0 <= row["sampled_all"]["share"] <= 1.0
+        assert row["transfers"]["count"] == len(row["sampled"]) - 1  # one test clip, every other style
+    assert (tmp_path / "turns.json").is_file() and len(format_turns(result)) == 3
+
+
+def test_disguise_labels_walks_by_how_they_turn(xia_dir):
+    """`python tests/disguise.py ... --turns 45` (the folder `bench turns` is measured on) labels Xia's
+    walks by their measured turn, not by their content ids."""
+    from types import SimpleNamespace
+
+    clips = [SimpleNamespace(name=stem) for stem in LEFT + RIGHT + STRAIGHT]
+    labels, splits = disguise.turn_labels(xia_dir, clips, 45.0)
+    expected = {f"{s}.bvh": LABELS.get(s, "walk") for s in LEFT + RIGHT + STRAIGHT}
+    assert labels == expected
+    assert set(splits.values()) == {"train"}  # no style and label with three clips: none held out

@@ -34,11 +34,11 @@ def generator(
     root: Path, epochs: int = 60, name: str = "tiny", data_options: dict | None = None, **options
 ) -> Path:
     """A StyledMotionDiffusion fitted for `epochs` on the Xia-named clips in root/xia (MotionDataModule
-    settings beside these: `data_options`); its checkpoint."""
-    dm = MotionDataModule(
-        root=str(root), cache_dir=str(root / "cache"), batch_size=16, window=24, preprocess_workers=1,
-        **(data_options or {}),
-    )  # fmt: skip
+    settings beside or instead of these: `data_options`); its checkpoint, root/`name`.ckpt."""
+    settings = dict(
+        root=str(root), cache_dir=str(root / "cache"), batch_size=16, window=24, preprocess_workers=1
+    )
+    dm = MotionDataModule(**(settings | (data_options or {})))
     L.seed_everything(0)
     model = StyledMotionDiffusion(dm.spec, **(GENERATOR | options))
     trainer = synthetic.quiet_trainer(max_epochs=epochs, limit_val_batches=0)

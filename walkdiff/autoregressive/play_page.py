@@ -25,6 +25,7 @@ import asyncio
 import copy
 import errno
 import json
+import logging
 import queue
 import socket
 import sys
@@ -46,6 +47,10 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.preview.scene import limb_sides
 
 DEFAULT_PORT = 8081
+# A browser opens spare sockets and may close them without a request; websockets logs each as a failed
+# handshake with a traceback. Nothing is wrong then: keep the user's terminal for what is.
+CONNECTIONS = logging.getLogger("walkdiff.play_page.connections")
+CONNECTIONS.addFilter(lambda record: record.getMessage() != "opening handshake failed")
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 WHERE = "the page"
 BEHIND_S = 0.25  # a walker this late on its schedule skips ahead instead of catching up in a burst
@@ -330,8 +335,9 @@ class PlayPage:
         self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
         try:
             server = await serve(
-                self._connection, host, port, process_request=self._http, compression=None, max_size=2**16
-            )
+                self._connection, host, port, process_request=self._http, compression=None, max_size=2**16,
+                logger=CONNECTIONS,
+            )  # fmt: skip
         except OSError as error:
             raise port_error(host, port, error) from None
         walking = ThreadPoolExecutor(1, thread_name_prefix="walkdiff-walker")

@@ -16,7 +16,7 @@ def add_parsers(sub) -> None:
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     for add in (
         add_data, add_train, add_gesture, add_stream, add_memory, add_view, add_walk, add_distill, add_sample,
-        add_protocol, add_style, add_retarget, add_play,
+        add_protocol, add_style, add_retarget, add_play, add_turns,
     ):  # fmt: skip
         add(bench)
     for b in bench.choices.values():
@@ -399,3 +399,38 @@ def run_play(args: argparse.Namespace) -> None:
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
         args.transition, frame_counts(args.characters, "--characters"), args.frames,
     )  # fmt: skip
+
+
+def add_turns(bench) -> None:
+    b = bench.add_parser(
+        "turns", help="labels that name a side (walk-turn-left): sampled clips and transfers turn that way"
+    )
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint trained on lateral labels")
+    b.add_argument("--out", required=True, help="JSON file for the results")
+    b.add_argument("--num", type=count(1), default=8, help="clips per label and style (default 8)")
+    b.add_argument("--frames", type=count(1), default=None, help="frames per clip (default two windows)")
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="sampler (default ddim)")
+    b.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    b.add_argument(
+        "--strength", type=number(0, 1, above=True), default=0.6, help="transfer strength (default 0.6)"
+    )
+    b.add_argument("--seed", type=count(0), default=0)
+    b.add_argument("--root", default=None, help="the data folder (default: the one the checkpoint records)")
+    b.set_defaults(run=run_turns)
+
+
+def run_turns(args: argparse.Namespace) -> None:
+    from walkdiff.bench.turns import bench_turns, format_turns
+
+    result = bench_turns(
+        args.ckpt,
+        args.out,
+        args.num,
+        args.frames,
+        args.seed,
+        args.sampler,
+        args.steps,
+        args.strength,
+        args.root,
+    )
+    print("\n".join(format_turns(result)))

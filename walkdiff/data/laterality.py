@@ -92,6 +92,14 @@ def lateral_tokens(label: str) -> list[str]:
     return [side[0] for m in _TOKEN.finditer(label) if (side := _token_side(m.group())) is not None]
 
 
+def side_of(label: str) -> str | None:
+    """The side a label names, "left" or "right" (a sense of rotation as seen from above: clockwise is
+    to the right), or None when it names none or both."""
+    sides = {_CANONICAL[word.lower()] for word in lateral_tokens(label)}
+    sides = {{"cw": "right", "ccw": "left"}.get(side, side) for side in sides}
+    return sides.pop() if len(sides) == 1 else None
+
+
 def mirrored_name(label: str) -> str | None:
     """`label` with every side swapped in its own spelling, or None when it names no side."""
     out, last, lateral = [], 0, False
