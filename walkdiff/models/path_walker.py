@@ -24,6 +24,7 @@ from torch import nn
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
+from walkdiff.models.planted_feet import PlantedFeet
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
 from walkdiff.spec import DataSpec
@@ -80,7 +81,7 @@ def path_control(
     return control, progress
 
 
-class PathWalker(AutoregressiveDiffusion):
+class PathWalker(PlantedFeet, AutoregressiveDiffusion):
     def __init__(
         self,
         data_spec: DataSpec | dict | None = None,
@@ -119,6 +120,8 @@ class PathWalker(AutoregressiveDiffusion):
         self.control_normalizer = Normalizer(control_dim)
         # Mean walking speed of each style in the training data (units/s): the default pace of a path.
         self.register_buffer("style_speed", torch.zeros(len(spec["styles"])))
+        # Where real planted feet stand: every frame made is grounded to it, a frame at a time.
+        self.init_planted_feet()
 
     # ------------------------------------------------------------ control
 
@@ -153,11 +156,16 @@ class PathWalker(AutoregressiveDiffusion):
             controls.append(self.controls_of(raw)[0].numpy())
             step = raw[0, :, self.layout.root_vel].norm(dim=-1) * self.spec["fps"]
             speeds[clip.style].append(step.numpy())
+        self.measure_planted_feet(datamodule)
         fitted = Normalizer.fit(np.concatenate(controls))
         self.control_normalizer.load_state_dict(fitted.state_dict())
         for style, values in speeds.items():
             if values:
                 self.style_speed[style] = float(np.concatenate(values).mean())
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        super().on_load_checkpoint(checkpoint)
+        self.load_planted_feet(checkpoint)
 
     # ------------------------------------------------------------ training
 
@@ -194,8 +202,8 @@ class PathWalker(AutoregressiveDiffusion):
         progress = np.zeros(rows)
         pace = self.pace(speed)
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
-        streams = self.start_streams(rows, sampler, fused)
-        poses = torch.zeros(rows, frames, dim, device=self.device)
+        streams, grounding = self.start_streams(rows, sampler, fused), self.running_ground(rows)
+        poses = np.zeros((rows, frames, dim), dtype=np.float32)
         style = style.to(self.device)
         for f in range(frames):
             if style_at is not None:
@@ -205,9 +213,8 @@ class PathWalker(AutoregressiveDiffusion):
             x = self.advance(
                 streams, self.encode_control(control.to(self.device)[:, None], style)[:, 0], generator
             )
-            poses[:, f] = x
-            raw = self.normalizer.denormalize(x).double().cpu().numpy()
-            position, heading = advance_root(position, heading, raw, self.layout)
+            poses[:, f] = raw = grounding(self.normalizer.denormalize(x).cpu().numpy())
+            position, heading = advance_root(position, heading, raw.astype(np.float64), self.layout)
             if on_frame is not None:
                 on_frame(f + 1, frames)
-        return self.normalizer.denormalize(poses).cpu().numpy(), (start.copy(), start_heading)
+        return poses, (start.copy(), start_heading)

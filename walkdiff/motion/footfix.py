@@ -240,3 +240,42 @@ def ground(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.n
     out = raw.copy()
     out[..., layout.root_height] += shift[..., None, None].astype(np.float32)
     return out
+
+
+class RunningGround:
+    """`ground` for motion made a frame at a time, where the clip's planted frames are not known ahead.
+
+    Each row's target shift is the mean, over its planted frames so far, of the median gap between its
+    planted joints and where real planted feet stand (`planted_heights`); the shift applied moves towards
+    it by at most `rate` units a frame, so the body settles instead of jumping as the estimate firms up.
+    Heights that are all NaN (a checkpoint that never measured them) leave every frame as it is.
+    """
+
+    def __init__(self, skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray, rows: int, rate: float):
+        self.skeleton, self.spec, self.rate = skeleton, spec, float(rate)
+        self.heights = np.asarray(heights, dtype=np.float64)
+        self.layout = FeatureLayout(skeleton.num_joints)
+        self.total, self.count, self.shift = np.zeros(rows), np.zeros(rows), np.zeros(rows)
+
+    def copy(self) -> RunningGround:
+        other = object.__new__(RunningGround)
+        other.__dict__.update(self.__dict__)
+        other.total, other.count, other.shift = self.total.copy(), self.count.copy(), self.shift.copy()
+        return other
+
+    def __call__(self, raw: np.ndarray) -> np.ndarray:
+        """One frame of raw features per row (R, D) -> the same, grounded (a new array)."""
+        raw = np.asarray(raw)
+        if np.isnan(self.heights).all():
+            return raw.copy()
+        feet = _feet_heights(torch.from_numpy(raw[:, None]).double(), self.skeleton, self.spec)[:, 0]
+        planted = raw[:, self.layout.contacts] > 0.5
+        gap = np.where(planted, self.heights[None] - feet.numpy(), np.nan)
+        has = np.isfinite(gap).any(-1)
+        self.total[has] += np.nanmedian(gap[has], axis=-1)
+        self.count[has] += 1
+        target = np.where(self.count > 0, self.total / np.maximum(self.count, 1), self.shift)
+        self.shift += np.clip(target - self.shift, -self.rate, self.rate)
+        out = raw.copy()
+        out[:, self.layout.root_height] += self.shift[:, None].astype(raw.dtype)
+        return out
