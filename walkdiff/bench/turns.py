@@ -10,7 +10,9 @@ directions (issue 32).
 Rows, per lateral label (and per style inside it): the share of sampled clips turning the label's way
 (target 95%), their median turn in degrees; the share of transfers keeping the source's direction
 (target 95%); and what the model learned from: the share of the training windows of the label (mirrored
-copies included, as training sees them) that turn its way, and of its whole training clips.
+copies included, as training sees them) that turn its way, and of its whole training clips. Per label
+that names no side (`walk`), the median absolute turn of a window sampled beside that of its training
+windows: a plain walk should not drift more than real plain walks do.
 """
 
 from __future__ import annotations
@@ -113,6 +115,9 @@ def bench_turns(
         "labels": {},
     }
     train = [(info, f) for info, _, f in data.split_features("train", mirrored=True)]
+    result["unlateral"] = _unlateral(
+        model, train, groups, set(lateral), window, num, frames, seed, sampler, steps
+    )
     for content, side in lateral.items():
         own = [f for info, f in train if groups[info.content] == content]
         windows = [t for f in own for t in window_turns(f, window, max(1, window // 2))]
@@ -137,6 +142,37 @@ def bench_turns(
     result["seconds"] = round(time.perf_counter() - started, 1)
     write_json(out, strict_json(result))
     return result
+
+
+def _unlateral(model, train, groups, lateral, window, num, frames, seed, sampler, steps) -> dict:
+    """Labels that name no side should not turn more than their training windows do: per such content,
+    the median absolute turn of a window, sampled (`num` clips per style) and in training."""
+    rows = {}
+    stride = max(1, window // 2)
+    for content in [c for c in model.contents if c not in lateral]:
+        real = [
+            abs(t)
+            for info, f in train
+            if groups[info.content] == content
+            for t in window_turns(f, window, stride)
+        ]
+        sampled = []
+        for style in model.styles:
+            takes = model.sample(
+                style, content, num=num, frames=frames, seed=seed, sampler=sampler, steps=steps
+            )
+            sampled += [
+                abs(t)
+                for take in takes
+                for t in window_turns(encode(take.canonical(), take.profile), window, stride)
+            ]
+        rows[content] = {
+            "sampled_window_abs_deg": round(float(np.median(sampled)), 1) if sampled else None,
+            "training_window_abs_deg": round(float(np.median(real)), 1) if real else None,
+            "sampled_windows": len(sampled),
+            "training_windows": len(real),
+        }
+    return rows
 
 
 def _transfers(model, data, content: str, groups, strength, seed, sampler, steps) -> dict:
@@ -170,5 +206,10 @@ def format_turns(result: dict) -> list[str]:
             f" (median {sampled['median_deg']} deg){'' if sampled['pass'] else ' !'}; transfers keep the"
             f" turn {moved['share_kept']:.1%} of {moved['count']}{'' if moved['pass'] else ' !'}; training"
             f" windows {row['training_windows']['share']:.1%}, clips {row['training_clips']['share']:.1%}"
+        )
+    for content, row in result.get("unlateral", {}).items():
+        lines.append(
+            f"  {content} (no side): median turn of a window {row['sampled_window_abs_deg']} deg sampled,"
+            f" {row['training_window_abs_deg']} deg in training"
         )
     return lines
