@@ -168,46 +168,6 @@ def test_the_api_steps_poses_and_takes(ckpt, tmp_path):
         walker.step((0, 0))
 
 
-def test_frames_are_grounded_where_real_planted_feet_stand(ckpt, tmp_path, caplog):
-    """The walker's frames are shifted, a frame at a time, so planted feet stand where they did in the
-    training clips (measured at fit, kept in the checkpoint); a checkpoint from before has no such heights
-    and walks as its network makes it, with a warning."""
-    from walkdiff.motion.footfix import _feet_heights
-
-    def sunk(model):
-        """A network that makes the mean pose, both feet planted, sunk 2 units below it."""
-        layout, mean = model.layout, model.normalizer.mean.float()
-
-        def advance(streams, control, generator, rows=None):
-            raw = mean.repeat(len(control), 1)
-            raw[:, layout.contacts] = 1.0
-            raw[:, layout.root_height] -= 2.0
-            return model.normalizer.normalize(raw)
-
-        model.advance = advance
-        return model
-
-    model = sunk(load_walker(ckpt))
-    heights = model.planted_height.numpy()
-    assert np.isfinite(heights).all(), "the walker measured where its training clips plant their feet"
-    walker = WalkController(model, "old", sampler=TWO)
-    for _ in range(45):
-        walker.advance()
-    raw = walker.kept[-1][1]
-    feet = _feet_heights(torch.from_numpy(raw[:, None]), model.skeleton, model.contact_spec)[0, 0].numpy()
-    assert np.median(feet - heights) == pytest.approx(0, abs=model.contact_spec.height_threshold)
-    # The same checkpoint without the heights (saved before walkdiff measured them): not grounded, said so.
-    old = torch.load(ckpt, weights_only=False)
-    del old["state_dict"]["planted_height"]
-    torch.save(old, tmp_path / "old.ckpt")
-    with caplog.at_level("WARNING"):
-        ungrounded = WalkController(sunk(load_walker(tmp_path / "old.ckpt")), "old", sampler=TWO)
-    assert "not grounded" in caplog.text
-    ungrounded.advance()
-    lowered = (model.normalizer.mean[model.layout.root_height] - 2.0).item()
-    assert ungrounded.kept[-1][1][0, model.layout.root_height.start] == pytest.approx(lowered, abs=1e-5)
-
-
 def test_characters_are_batched_and_independent_of_each_others_commands(ckpt):
     model = load_walker(ckpt)
 

@@ -206,7 +206,6 @@ class WalkController:
         self.sampler = sampler or DEFAULT_SAMPLER
         self.generator = torch.Generator(device=model.device).manual_seed(seed)
         self.streams = model.start_streams(characters, self.sampler)
-        self.grounding = model.running_ground(characters)  # feet where real planted feet stand
         self.position = np.zeros((characters, 2)) if positions is None else self._positions(positions)
         self.heading = np.zeros(characters) if headings is None else self._headings(headings)
         self.target = self.heading.copy()  # the commanded direction of travel (radians)
@@ -300,7 +299,7 @@ class WalkController:
         control = torch.from_numpy(control).float().to(model.device)[:, None]
         encoded = model.encode_control(control, self.weights.float().to(model.device))[:, 0]
         x = model.advance(self.streams, encoded, self.generator)
-        raw = self.grounding(model.normalizer.denormalize(x).double().cpu().numpy())
+        raw = model.normalizer.denormalize(x).double().cpu().numpy()
         poses = self.poses(raw, self.position, self.heading)
         if self.record:
             self.kept.append((self.frame, raw, self.position.copy(), self.heading.copy()))
@@ -359,7 +358,6 @@ class WalkController:
         other.generator = torch.Generator(device=self.model.device)
         other.generator.set_state(self.generator.get_state())
         other.streams = copy.copy(self.streams)  # advancing every row replaces its tensors, never writes them
-        other.grounding = self.grounding.copy()
         for name in ("position", "heading", "target"):
             setattr(other, name, getattr(self, name).copy())
         other.speed, other.ramp, other.labels = list(self.speed), list(self.ramp), list(self.labels)

@@ -226,7 +226,6 @@ class WalkStream(Stream):
         self.position = self.heading = self.progress = None
         self.made: list[np.ndarray] = []
         self.roots: list[tuple[np.ndarray, float]] = []  # per frame made: root (x, z) and heading there
-        self.grounding = model.running_ground(1)  # feet where real planted feet stand, as `walk` does
         self.batch = batch or WalkBatch(model, seed, sampler)
         self.row = self.batch.join(self)
 
@@ -297,7 +296,6 @@ class WalkStream(Stream):
 
     def receive(self, pose: np.ndarray) -> None:
         self.roots.append((self.position[0].copy(), float(self.heading[0])))
-        pose = self.grounding(pose[None])[0]
         self.made.append(pose)
         raw = pose.astype(np.float64)[None]
         self.position, self.heading = advance_root(self.position, self.heading, raw, self.model.layout)

@@ -24,7 +24,6 @@ from torch import nn
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
-from walkdiff.models.planted_feet import PlantedFeet
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
 from walkdiff.spec import DataSpec
@@ -81,7 +80,7 @@ def path_control(
     return control, progress
 
 
-class PathWalker(PlantedFeet, AutoregressiveDiffusion):
+class PathWalker(AutoregressiveDiffusion):
     def __init__(
         self,
         data_spec: DataSpec | dict | None = None,
@@ -120,8 +119,6 @@ class PathWalker(PlantedFeet, AutoregressiveDiffusion):
         self.control_normalizer = Normalizer(control_dim)
         # Mean walking speed of each style in the training data (units/s): the default pace of a path.
         self.register_buffer("style_speed", torch.zeros(len(spec["styles"])))
-        # Where real planted feet stand: every frame made is grounded to it, a frame at a time.
-        self.init_planted_feet()
 
     # ------------------------------------------------------------ control
 
@@ -156,16 +153,11 @@ class PathWalker(PlantedFeet, AutoregressiveDiffusion):
             controls.append(self.controls_of(raw)[0].numpy())
             step = raw[0, :, self.layout.root_vel].norm(dim=-1) * self.spec["fps"]
             speeds[clip.style].append(step.numpy())
-        self.measure_planted_feet(datamodule)
         fitted = Normalizer.fit(np.concatenate(controls))
         self.control_normalizer.load_state_dict(fitted.state_dict())
         for style, values in speeds.items():
             if values:
                 self.style_speed[style] = float(np.concatenate(values).mean())
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        super().on_load_checkpoint(checkpoint)
-        self.load_planted_feet(checkpoint)
 
     # ------------------------------------------------------------ training
 
@@ -202,8 +194,8 @@ class PathWalker(PlantedFeet, AutoregressiveDiffusion):
         progress = np.zeros(rows)
         pace = self.pace(speed)
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
-        streams, grounding = self.start_streams(rows, sampler, fused), self.running_ground(rows)
-        poses = np.zeros((rows, frames, dim), dtype=np.float32)
+        streams = self.start_streams(rows, sampler, fused)
+        poses = torch.zeros(rows, frames, dim, device=self.device)
         style = style.to(self.device)
         for f in range(frames):
             if style_at is not None:
@@ -213,8 +205,9 @@ class PathWalker(PlantedFeet, AutoregressiveDiffusion):
             x = self.advance(
                 streams, self.encode_control(control.to(self.device)[:, None], style)[:, 0], generator
             )
-            poses[:, f] = raw = grounding(self.normalizer.denormalize(x).cpu().numpy())
-            position, heading = advance_root(position, heading, raw.astype(np.float64), self.layout)
+            poses[:, f] = x
+            raw = self.normalizer.denormalize(x).double().cpu().numpy()
+            position, heading = advance_root(position, heading, raw, self.layout)
             if on_frame is not None:
                 on_frame(f + 1, frames)
-        return poses, (start.copy(), start_heading)
+        return self.normalizer.denormalize(poses).cpu().numpy(), (start.copy(), start_heading)

@@ -63,8 +63,8 @@ from walkdiff.diffusion import (
 from walkdiff.models.base import MotionModule
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
-from walkdiff.models.planted_feet import PlantedFeet
 from walkdiff.models.style_encoder import reference_windows
+from walkdiff.motion.footfix import ground, planted_heights
 from walkdiff.motion.representation import decode_root, features_to_positions
 from walkdiff.spec import DataSpec
 
@@ -83,7 +83,7 @@ class TrainingDiverged(RuntimeError):
     """A loss term became NaN or infinite; the message names the batch and the term."""
 
 
-class StyledMotionDiffusion(PlantedFeet, MotionModule):
+class StyledMotionDiffusion(MotionModule):
     def __init__(
         self,
         data_spec: DataSpec | dict | None = None,
@@ -146,13 +146,23 @@ class StyledMotionDiffusion(PlantedFeet, MotionModule):
         self.teacher = None
         if self.distilled_steps:
             self.teacher = denoiser(0.0, jump_conditioning=False).requires_grad_(False)
-        self.init_planted_feet()  # where real planted feet stand: generated clips are grounded to it
+        # Where real planted feet stand (contact joints, data units): generated clips are grounded to it.
+        # Measured on the unmirrored training clips: a mirrored copy keeps Xia's asymmetric offsets, so
+        # its feet stand up to ~0.2 units off where a real foot on that side does.
+        self.register_buffer("planted_height", torch.zeros(4))
+        self.grounded_heights = True
 
     def setup(self, stage: str) -> None:
         super().setup(stage)
         datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if stage == "fit" and datamodule is not None:
-            self.measure_planted_feet(datamodule)
+            train = [f for _, _, f in datamodule.split_features("train")]
+            heights = planted_heights(train, self.skeleton, self.contact_spec)
+            never = [n for n, h in zip(self.contact_spec.joints, heights, strict=True) if np.isnan(h)]
+            if never:
+                log.warning(f"contact joints never planted in the training data: {', '.join(never)}; "
+                            "grounding of generated clips leaves them out")  # fmt: skip
+            self.planted_height.copy_(torch.from_numpy(heights))
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         super().on_load_checkpoint(checkpoint)
@@ -161,7 +171,9 @@ class StyledMotionDiffusion(PlantedFeet, MotionModule):
                 "a student distilled before walkdiff kept the teacher's network in it; distil it again "
                 "with `walkdiff distill`"
             )
-        self.load_planted_feet(checkpoint)
+        # Checkpoints saved before walkdiff measured planted feet load, but cannot be grounded.
+        self.grounded_heights = "planted_height" in checkpoint["state_dict"]
+        checkpoint["state_dict"].setdefault("planted_height", torch.full((4,), float("nan")))
 
     @property
     def batches_done(self) -> int:
@@ -208,6 +220,10 @@ class StyledMotionDiffusion(PlantedFeet, MotionModule):
     def _pose(self, positions: torch.Tensor) -> torch.Tensor:
         """Joint positions relative to the root (B, F, J, 3), in contact heights."""
         return self._in_heights(positions - positions[..., :1, :])
+
+    @property
+    def contact_spec(self):
+        return self.profile.contacts
 
     def _foot_joints(self) -> list[int]:
         return [self.skeleton.index(name) for name in self.contact_spec.joints]
@@ -534,3 +550,12 @@ class StyledMotionDiffusion(PlantedFeet, MotionModule):
         """
         raw = self.normalizer.denormalize(x).float().cpu().numpy()
         return self.ground(raw) if grounded else raw
+
+    def ground(self, raw: np.ndarray) -> np.ndarray:
+        """Raw features (..., F, D) shifted so their planted feet stand where real ones do."""
+        if not self.grounded_heights:
+            raise WalkdiffError(
+                "this checkpoint was saved before walkdiff stored where planted feet stand, so its clips "
+                "cannot be grounded: retrain it, or pass --no-ground"
+            )
+        return ground(raw, self.skeleton, self.contact_spec, self.planted_height.cpu().numpy())
