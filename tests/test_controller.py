@@ -93,8 +93,14 @@ def test_the_control_runs_along_the_command_and_bends_into_turns():
     assert np.all(np.diff(left[:, 0]) > 0) and left[1, 0] < 0.2 * left[1, 1]
     np.testing.assert_allclose(left[-1], 10 / math.pi * np.array([1.0, 1.0]), atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(np.diff(left, axis=0), axis=1).sum(), 5, rtol=0.01)
-    # Straight behind turns left too; within the 0.5 s look-ahead it looks as the 90 degree turn does.
+    # Straight behind turns left too, aimed at as a quarter turn: the points never lie behind the walker,
+    # however fast the control bends (at 720 degrees/s, the default, a 90 degree turn is done in 1/8 s).
     np.testing.assert_allclose(behind, left, atol=1e-12)
+    fast = command_control(np.zeros(3), np.radians([90, 180, -135.0]), np.full(3, 10.0), times, 4 * math.pi)
+    quarter, around, back_right = fast.reshape(3, -1, 2)
+    np.testing.assert_allclose(around, quarter, atol=1e-12)
+    np.testing.assert_allclose(back_right, quarter * [-1, 1], atol=1e-12)
+    assert np.all(fast.reshape(3, -1, 2)[..., 1] >= 0), "no point behind the walker"
     direct = command_control(np.zeros(1), np.radians([90.0]), np.array([10.0]), times, math.inf)
     np.testing.assert_allclose(direct.reshape(-1, 2), np.stack([10 * times, np.zeros(6)], -1), atol=1e-12)
     # The control is in the walker's frame: a walker facing +x told to go +x walks straight on.
@@ -134,6 +140,15 @@ def walked_after(walker: WalkController, command: dict, frames: int) -> np.ndarr
 
 
 # ---------------------------------------------------------------- the tiny walker as it is
+
+
+def test_the_command_lines_turn_as_the_api_does():
+    from walkdiff.autoregressive.controller import TURN_RATE
+    from walkdiff.cli.main import build_parser
+
+    for command in (["control"], ["play"], ["bench", "play", "--evaluator", "e.ckpt", "--out", "o.json"]):
+        args = build_parser().parse_args([*command, "--ckpt", "x.ckpt"])
+        assert args.turn_rate == TURN_RATE
 
 
 def test_the_api_steps_poses_and_takes(ckpt, tmp_path):
@@ -436,6 +451,8 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
     assert set(result["following"]["heading_error_deg"]) == {"straight", "turn_45", "turn_90", "turn_180"}
     assert set(result["generation"]["by_characters"]) == {"1", "2"}
     assert result["style"]["windows"] > 0 and result["skating"]["generated"] >= 0
+    real_feet = result["skating"]["feet_on_ground_speed"]["real_test"]
+    assert 0 <= real_feet["feet"] < real_feet["root"], "real feet on the ground stand while the body moves"
     for name, verdict in result["targets"].items():
         assert set(verdict) == {"value", "target", "pass"} and verdict["pass"] in (True, False, None), name
     assert main(argv) == 1

@@ -11,11 +11,13 @@ the command instead of from a path, every frame, from where the walker is:
   commanded pace. The direction is a world direction, so the control re-aims every frame at it from
   wherever the walker has got to: the heading's sway over a stride does not make the walk drift.
 - **Turning**: the points bend from the current heading towards the commanded direction at `turn_rate`
-  (default 180 degrees/s over the look-ahead's time), then run straight along it: an arc of radius
-  speed / turn_rate, the path a walker turning on the spot at walking pace takes. A command 90 or 180
-  degrees off the heading is thus a curve that starts straight ahead, the kind of path Xia's real walks
-  make when they turn, not points beside or behind the walker (which ask it to side-step or back up,
-  what it has hardly seen). A command exactly behind turns left. `turn_rate=math.inf`: no bend.
+  (default 720 degrees/s), then run straight along it: an arc of radius speed / turn_rate, a tight
+  corner that starts straight ahead. The walker turns more slowly than its control bends (Xia's walks
+  turn gently), so the control bends sharply to get a quick turn out of it: at 180 degrees/s its heading
+  was still 49 degrees off a 90 degree command after 1 s, at 720 degrees/s 16. A command further round
+  than 90 degrees is aimed at as a 90 degree turn, renewed every frame as the walker turns, so the points
+  never lie behind the walker (which would ask it to back up, what it has hardly seen). A command
+  exactly behind turns left. `turn_rate=math.inf`: no bend.
 - **Stop**: speed 0 puts every point at the root, the control of a walker standing still; it slows to a
   stand and stays there. Without pace the points have no direction: it turns again once it walks.
 - **Speed and style** act on the next frame: the pace at once, the style embedding (a name, a mix
@@ -47,7 +49,8 @@ from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 
-TURN_RATE = 180.0  # degrees per second the control's path bends at towards a new direction
+TURN_RATE = 720.0  # degrees per second the control's path bends at towards a new direction
+MAX_AIM = math.pi / 2  # the control never aims further off the heading than this (no walking backwards)
 DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 9.8 ms a frame on 2 cores, DDPM's quality (walking.md)
 
 
@@ -102,9 +105,11 @@ def command_control(
 ) -> np.ndarray:
     """The raw controls (N, 2K) of walkers facing `heading` (N,) told to walk towards `target` (N,) (both
     radians) at `speed` (N,) units/s: K points `times` (K,) seconds ahead along an arc that turns from the
-    heading to the target at `turn_rate` rad/s, then straight on, as (x, z) in each walker's own frame."""
+    heading to the target (at most a quarter turn away: `MAX_AIM`) at `turn_rate` rad/s, then straight
+    on, as (x, z) in each walker's own frame."""
     delta = np.remainder(target - heading + math.pi, 2 * math.pi) - math.pi  # [-pi, pi)
     delta = np.where(delta == -math.pi, math.pi, delta)  # straight behind: turn left
+    delta = np.clip(delta, -MAX_AIM, MAX_AIM)  # further round: a quarter turn, renewed as the walker turns
     side, size = np.sign(delta)[:, None], np.abs(delta)[:, None]
     v, t = speed[:, None], times[None, :]
     if math.isinf(turn_rate):

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from walkdiff.autoregressive.controller import (
+    TURN_RATE,
     WalkController,
     angle_of,
     checked_speed,
@@ -239,7 +240,7 @@ def play(
     steps: int | None = None,
     eta: float | None = None,
     transition: float = 0.0,
-    turn_rate: float = 180.0,
+    turn_rate: float = TURN_RATE,
     fps: float | None = None,
     overwrite: bool = False,
 ) -> dict:
@@ -345,7 +346,7 @@ def control(
     eta: float | None = None,
     characters: int = 1,
     transition: float = 0.0,
-    turn_rate: float = 180.0,
+    turn_rate: float = TURN_RATE,
     out: str | None = None,
     overwrite: bool = False,
 ) -> dict:

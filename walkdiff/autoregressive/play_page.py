@@ -38,7 +38,7 @@ from http import HTTPStatus
 from importlib import resources
 from pathlib import Path
 
-from walkdiff.autoregressive.controller import WalkController, checked_speed
+from walkdiff.autoregressive.controller import TURN_RATE, WalkController, checked_speed
 from walkdiff.autoregressive.keys import KeyControl
 from walkdiff.autoregressive.play import Replay, load_controller, settings, take_files, write_takes
 from walkdiff.common.errors import WalkdiffError
@@ -424,7 +424,7 @@ def open_page(
     steps: int | None = None,
     eta: float | None = None,
     transition: float = 0.0,
-    turn_rate: float = 180.0,
+    turn_rate: float = TURN_RATE,
     fps: float | None = None,
     overwrite: bool = False,
 ) -> PlayPage:

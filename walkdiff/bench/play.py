@@ -20,7 +20,8 @@ switching every `hold` seconds. Each runs for every seed, one character, as a ga
 - **Style**: the evaluator's windows (its length and stride) of every take, labelled with the style
   commanded throughout the window (windows across a switch or a ramp are left out), recognised as often
   as the real test windows of those styles are; foot skating of the same windows against the real ones
-  (`ClipScorer.statistics`).
+  (`ClipScorer.statistics`), and the median speed along the ground of feet on the ground beside the
+  root's (where skating comes from: feet that do not keep step with the body).
 - **Seams at style switches**: the change of mean joint speed from one frame step to the next, its
   largest over the three steps around a switch, against the 95th percentile of the same over windows
   inside a style (at least 0.5 s from a switch); the project's `seam_tails` of the joint speeds too.
@@ -40,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.controller import WalkController, controller
+from walkdiff.autoregressive.controller import TURN_RATE, WalkController, controller
 from walkdiff.autoregressive.walk import load_walker
 from walkdiff.bench.measure import machine, report
 from walkdiff.common.errors import WalkdiffError
@@ -278,7 +279,23 @@ def recognition(scorer: ClipScorer, takes: list[Walked], model) -> tuple[dict, d
     style["vs_real"] = _ratio(style["accuracy"], style["real_test_accuracy"])
     skating = {"generated": made["skate_ratio"], "real_test": real_values["skate_ratio"]}
     skating["vs_real"] = _ratio(skating["generated"], skating["real_test"])
+    skating["feet_on_ground_speed"] = {"generated": _ground_speeds(scorer, windows),
+                                       "real_test": _ground_speeds(scorer, taken)}  # fmt: skip
     return style, skating
+
+
+def _ground_speeds(scorer: ClipScorer, windows) -> dict:
+    """Median horizontal speed (units/s) of the foot joints while on the ground (as the skating measure
+    finds contact) beside the root's: feet that keep step with the body stand still while it moves."""
+    inner = scorer.scorer
+    positions = windows.positions.double()
+    ground = inner.ground_contacts(positions)
+    ground = ground[:, 1:] & ground[:, :-1]
+    step = positions[:, 1:, :, [0, 2]] - positions[:, :-1, :, [0, 2]]
+    feet = step[:, :, inner.foot_joints].norm(dim=-1) * inner.fps
+    root = step[:, :, 0].norm(dim=-1) * inner.fps
+    return {"feet": round(float(feet[ground].median()), 2) if ground.any() else None,
+            "root": round(float(root.median()), 2)}  # fmt: skip
 
 
 def _ratio(a, b) -> float | None:
@@ -395,6 +412,7 @@ def bench_play(
     transition: float = 0.0,
     characters: tuple[int, ...] = (1, 4, 8, 16, 32),
     timing_frames: int = 30,
+    turn_rate: float = TURN_RATE,
 ) -> dict:
     """Every scenario for `seeds` seeds, the measures of the module docstring, written to `out`."""
     if hold < 2:
@@ -411,7 +429,9 @@ def bench_play(
     speed = float(known[list(model.spec["styles"]).index(styles[0])]) * unit
 
     def make(seed: int, n: int = 1, pace: float | None = speed) -> WalkController:
-        return controller(model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition)
+        return controller(
+            model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition, turn_rate=turn_rate
+        )
 
     takes = []
     for scenario in scenarios(styles, speed, hold):
@@ -429,7 +449,7 @@ def bench_play(
     result = {
         "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds, "hold_s": hold,
-        "transition_s": transition, "styles": styles, "speed_m_s": speed,
+        "transition_s": transition, "turn_rate_deg_s": turn_rate, "styles": styles, "speed_m_s": speed,
         "latency": latency(takes, fps, compute, round(fps)),
         "generation": {
             "one_character_ms": round(compute, 3),

@@ -384,6 +384,10 @@ def add_play(bench) -> None:
     b.add_argument("--eta", type=number(0, 1), default=None, help="DDIM noise (default 1)")
     b.add_argument("--transition", type=number(0), default=0.0, help="seconds a style switch is ramped over")
     b.add_argument(
+        "--turn-rate", type=number(0, above=True), default=720.0,
+        help="degrees per second the control bends towards a new direction (default 720, as walkdiff play)",
+    )  # fmt: skip
+    b.add_argument(
         "--characters", default="1,4,8,16,32", help="characters batched, timed (default 1,4,8,16,32)"
     )
     b.add_argument(
@@ -397,7 +401,7 @@ def run_play(args: argparse.Namespace) -> None:
 
     bench_play(
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
-        args.transition, frame_counts(args.characters, "--characters"), args.frames,
+        args.transition, frame_counts(args.characters, "--characters"), args.frames, args.turn_rate,
     )  # fmt: skip
 
 

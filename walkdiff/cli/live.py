@@ -38,8 +38,8 @@ def walker_options(p: argparse.ArgumentParser) -> None:
         help="seconds a style change is ramped over (default 0: at once)",
     )  # fmt: skip
     p.add_argument(
-        "--turn-rate", type=number(0, above=True), default=180.0,
-        help="degrees per second the control's path bends at towards a new direction (default 180)",
+        "--turn-rate", type=number(0, above=True), default=720.0,
+        help="degrees per second the control's path bends at towards a new direction (default 720)",
     )  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
