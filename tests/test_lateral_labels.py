@@ -293,7 +293,7 @@ def test_bench_turns_measures_sampled_and_transferred_turns(turning, tmp_path):
         assert set(row["sampled"]) == styles and all(r["count"] == 1 for r in row["sampled"].values())
         assert 0.0 <= row["sampled_all"]["share"] <= 1.0
         assert row["transfers"]["count"] == len(row["sampled"]) - 1  # one test clip, every other style
-    walk = result["unlateral"]["walk"]  # the straight walks: how much a window turns, sampled and real
+    walk = result["no_side"]["walk"]  # the straight walks: how much a window turns, sampled and real
     assert walk["sampled_windows"] == len(styles) and walk["training_windows"] > 0
     assert 0 <= walk["training_window_abs_deg"] < 45 and walk["sampled_window_abs_deg"] >= 0
     assert (tmp_path / "turns.json").is_file() and len(format_turns(result)) == 4

@@ -39,15 +39,15 @@ def turn_degrees(features: np.ndarray) -> float:
     return float(np.degrees(np.asarray(features)[:, HEADING].sum()))
 
 
-def take_turn(take) -> float:
-    """Degrees a `Take` turns to the body's left."""
-    return turn_degrees(encode(take.canonical(), take.profile))
+def take_features(take) -> np.ndarray:
+    """A `Take`'s features (F, D) on its model's skeleton, as training encodes clips."""
+    return encode(take.canonical(), take.profile)
 
 
-def window_turns(features: np.ndarray, window: int, stride: int) -> list[float]:
-    """Degrees turned by each training window of a clip's features (F, D)."""
-    starts = range(0, max(len(features) - window, 0) + 1, stride)
-    return [turn_degrees(features[s : s + window]) for s in starts if len(features) >= window]
+def window_turns(features: np.ndarray, window: int) -> list[float]:
+    """Degrees turned by each window of a clip's features (F, D), windows half a window apart."""
+    starts = range(0, len(features) - window + 1, max(1, window // 2))
+    return [turn_degrees(features[s : s + window]) for s in starts]
 
 
 def _share(turns: list[float], side: str) -> float:
@@ -115,26 +115,31 @@ def bench_turns(
         "labels": {},
     }
     train = [(info, f) for info, _, f in data.split_features("train", mirrored=True)]
-    result["unlateral"] = _unlateral(
-        model, train, groups, set(lateral), window, num, frames, seed, sampler, steps
-    )
-    for content, side in lateral.items():
+    result["no_side"] = {}
+    for content in model.contents:
         own = [f for info, f in train if groups[info.content] == content]
-        windows = [t for f in own for t in window_turns(f, window, max(1, window // 2))]
+        sampled = {
+            style: [
+                take_features(t)
+                for t in model.sample(style, content, num=num, frames=frames, seed=seed, sampler=sampler,
+                                      steps=steps)
+            ]
+            for style in progress(model.styles, desc=f"sample {content}", unit="style")
+        }  # fmt: skip
+        side = lateral.get(content)
+        if side is None:
+            result["no_side"][content] = _straight_row(own, sampled, window)
+            continue
+        windows = [t for f in own for t in window_turns(f, window)]
         row = {
             "side": side,
             "training_windows": _row(windows, side),
             "training_clips": _row([turn_degrees(f) for f in own], side),
-            "sampled": {},
+            "sampled": {
+                style: _row([turn_degrees(f) for f in clips], side) for style, clips in sampled.items()
+            },
         }
-        pooled = []
-        for style in progress(model.styles, desc=f"sample {content}", unit="style"):
-            takes = model.sample(
-                style, content, num=num, frames=frames, seed=seed, sampler=sampler, steps=steps
-            )
-            turns = [take_turn(t) for t in takes]
-            pooled += turns
-            row["sampled"][style] = _row(turns, side)
+        pooled = [turn_degrees(f) for clips in sampled.values() for f in clips]
         row["sampled_all"] = {**_row(pooled, side), "pass": _share(pooled, side) >= TARGET}
         row["transfers"] = _transfers(model, data, content, groups, strength, seed, sampler, steps)
         result["labels"][content] = row
@@ -144,35 +149,17 @@ def bench_turns(
     return result
 
 
-def _unlateral(model, train, groups, lateral, window, num, frames, seed, sampler, steps) -> dict:
-    """Labels that name no side should not turn more than their training windows do: per such content,
-    the median absolute turn of a window, sampled (`num` clips per style) and in training."""
-    rows = {}
-    stride = max(1, window // 2)
-    for content in [c for c in model.contents if c not in lateral]:
-        real = [
-            abs(t)
-            for info, f in train
-            if groups[info.content] == content
-            for t in window_turns(f, window, stride)
-        ]
-        sampled = []
-        for style in model.styles:
-            takes = model.sample(
-                style, content, num=num, frames=frames, seed=seed, sampler=sampler, steps=steps
-            )
-            sampled += [
-                abs(t)
-                for take in takes
-                for t in window_turns(encode(take.canonical(), take.profile), window, stride)
-            ]
-        rows[content] = {
-            "sampled_window_abs_deg": round(float(np.median(sampled)), 1) if sampled else None,
-            "training_window_abs_deg": round(float(np.median(real)), 1) if real else None,
-            "sampled_windows": len(sampled),
-            "training_windows": len(real),
-        }
-    return rows
+def _straight_row(training: list[np.ndarray], sampled: dict, window: int) -> dict:
+    """A label that names no side should not turn more than its training windows do: the median absolute
+    turn of a window, sampled and in training."""
+    real = [abs(t) for f in training for t in window_turns(f, window)]
+    made = [abs(t) for clips in sampled.values() for f in clips for t in window_turns(f, window)]
+    return {
+        "sampled_window_abs_deg": round(float(np.median(made)), 1) if made else None,
+        "training_window_abs_deg": round(float(np.median(real)), 1) if real else None,
+        "sampled_windows": len(made),
+        "training_windows": len(real),
+    }
 
 
 def _transfers(model, data, content: str, groups, strength, seed, sampler, steps) -> dict:
@@ -188,7 +175,7 @@ def _transfers(model, data, content: str, groups, strength, seed, sampler, steps
             take = model.transfer(
                 info.path, style, content, strength=strength, seed=seed, sampler=sampler, steps=steps
             )
-            turned = take_turn(take)
+            turned = turn_degrees(take_features(take))
             kept.append(np.sign(turned) == np.sign(source))
             rows.append({"clip": info.name, "style": style, "source_deg": round(source, 1),
                          "transfer_deg": round(turned, 1)})  # fmt: skip
@@ -207,7 +194,7 @@ def format_turns(result: dict) -> list[str]:
             f" turn {moved['share_kept']:.1%} of {moved['count']}{'' if moved['pass'] else ' !'}; training"
             f" windows {row['training_windows']['share']:.1%}, clips {row['training_clips']['share']:.1%}"
         )
-    for content, row in result.get("unlateral", {}).items():
+    for content, row in result["no_side"].items():
         lines.append(
             f"  {content} (no side): median turn of a window {row['sampled_window_abs_deg']} deg sampled,"
             f" {row['training_window_abs_deg']} deg in training"
