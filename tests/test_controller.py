@@ -134,6 +134,44 @@ def test_an_ideal_follower_walks_along_turns_towards_and_stops_where_told(ideal)
     assert np.linalg.norm(again[-1] - again[10]) == pytest.approx(1.0, rel=0.15)
 
 
+def test_the_heading_assist_turns_the_root_at_most_its_rate_and_never_when_standing(ideal):
+    """A walker that never turns on its own is turned towards the command by the assist alone: at most
+    `heading_assist` degrees a second, closing the error with time constant ASSIST_TIME, not at all with
+    the assist off or while standing; the assist is counted."""
+    from walkdiff.autoregressive.controller import ASSIST_TIME
+
+    layout, advance = ideal.layout, ideal.advance
+
+    def straight_on(streams, control, generator, rows=None):  # the ideal follower without its own turn
+        raw = ideal.normalizer.denormalize(advance(streams, control, generator, rows))
+        raw[:, layout.heading_vel] = 0
+        return ideal.normalizer.normalize(raw)
+
+    ideal.advance = straight_on
+    turned = {}
+    for rate in (0.0, 30.0, 90.0):
+        walker = WalkController(ideal, "old", speed=1.2, sampler=TWO, heading_assist=rate)
+        walker.command(direction=90)
+        headings = []
+        for _ in range(30):
+            walker.step()
+            headings.append(math.degrees(walker.heading[0]))  # after the frame's turn
+        turned[rate] = headings
+        assert walker.assisted[0] == pytest.approx(math.radians(headings[-1]), rel=1e-9)
+    assert turned[0.0] == [0.0] * 30
+    np.testing.assert_allclose(np.diff([0.0, *turned[30.0]]), 1.0, atol=1e-9)  # 30 degrees/s at 30 fps
+    steps = np.diff([0.0, *turned[90.0]])
+    assert np.all(steps <= 3.0 + 1e-9) and steps[0] == pytest.approx(3.0)
+    # Once within reach, the error closes by 1 / (ASSIST_TIME * fps) of itself a frame.
+    error = 90 - np.array(turned[90.0])
+    assert error[-1] == pytest.approx(error[-2] * (1 - 1 / (ASSIST_TIME * 30)), rel=1e-6)
+    standing = WalkController(ideal, "old", speed=0.0, sampler=TWO, heading_assist=90.0)
+    standing.command(direction=90)
+    assert [standing.step().heading for _ in range(10)] == [0.0] * 10
+    with pytest.raises(WalkdiffError, match="heading_assist"):
+        WalkController(ideal, "old", sampler=TWO, heading_assist=-1.0)
+
+
 def walked_after(walker: WalkController, command: dict, frames: int) -> np.ndarray:
     walker.command(**command)
     return walked(walker, frames)
@@ -143,12 +181,12 @@ def walked_after(walker: WalkController, command: dict, frames: int) -> np.ndarr
 
 
 def test_the_command_lines_turn_as_the_api_does():
-    from walkdiff.autoregressive.controller import TURN_RATE
+    from walkdiff.autoregressive.controller import HEADING_ASSIST, TURN_RATE
     from walkdiff.cli.main import build_parser
 
     for command in (["control"], ["play"], ["bench", "play", "--evaluator", "e.ckpt", "--out", "o.json"]):
         args = build_parser().parse_args([*command, "--ckpt", "x.ckpt"])
-        assert args.turn_rate == TURN_RATE
+        assert args.turn_rate == TURN_RATE and args.heading_assist == HEADING_ASSIST
 
 
 def test_the_api_steps_poses_and_takes(ckpt, tmp_path):

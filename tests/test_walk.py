@@ -257,3 +257,31 @@ def test_walker_training_preview_draws_the_path(trained, tmp_path):
         assert (np.asarray(gif.convert("RGB")) == PATH).all(axis=-1).sum() > 20
     with pytest.raises(WalkdiffError, match="unknown style 'tired'"):
         WalkSamples(style="tired").write(model, None, "", folder=tmp_path)
+
+
+def test_walker_body_terms_put_each_predicted_frame_between_the_real_ones(xia_dir):
+    """The walker's body terms (teacher forcing: a predicted frame between the real frames around it)
+    are zero for the real motion, and measure a root lifted or a planted foot dragged in the skeleton's
+    contact units."""
+    clip = next(c for c in list_clips(xia_dir) if c.content == 0)
+    motion = load(clip)
+    profile = synthetic.xia_profile(motion)
+    raw = torch.from_numpy(encode(resample(motion, 30.0), profile))[None, :60].float()
+    spec = dict(dataset="xia", feature_dim=raw.shape[-1], num_joints=31, window=24, fps=30.0,
+                styles=("a",), contents=("w",))  # fmt: skip
+    model = PathWalker(spec, **tiny.WALKER)
+    model.profile = profile
+    weight = torch.ones(1, raw.shape[1] - 2)
+    real = model.body_losses(raw, raw, weight)
+    assert real["velocity"].item() == pytest.approx(0, abs=1e-9)
+    assert real["foot_height"].item() == pytest.approx(0, abs=1e-9)
+    assert real["foot"].item() < 0.1  # real planted feet hardly move
+    lifted = raw.clone()
+    lifted[..., model.layout.root_height] += profile.contacts.height_threshold
+    assert model.body_losses(raw, lifted, weight)["foot_height"].item() == pytest.approx(1, rel=1e-4)
+    # A root step twice as long drags the planted feet of the frame after it.
+    striding = raw.clone()
+    striding[..., model.layout.root_vel] *= 2
+    dragged = model.body_losses(raw, striding, weight)
+    assert dragged["foot"].item() > 10 * real["foot"].item() + 0.1
+    assert dragged["velocity"].item() > 0.1

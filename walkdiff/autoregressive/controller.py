@@ -51,6 +51,8 @@ from walkdiff.motion.take import Take
 
 TURN_RATE = 720.0  # degrees per second the control's path bends at towards a new direction
 MAX_AIM = math.pi / 2  # the control never aims further off the heading than this (no walking backwards)
+HEADING_ASSIST = 45.0  # degrees per second the root may be turned beyond the walker's own turn
+ASSIST_TIME = 0.25  # seconds: the time constant of that correction
 DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 9.8 ms a frame on 2 cores, DDPM's quality (walking.md)
 
 
@@ -190,6 +192,7 @@ class WalkController:
         characters: int = 1,
         transition: float = 0.0,
         turn_rate: float = TURN_RATE,
+        heading_assist: float = HEADING_ASSIST,
         positions=None,
         headings=None,
         record: bool = True,
@@ -202,7 +205,10 @@ class WalkController:
             raise WalkdiffError(f"turn_rate: expected degrees per second > 0, got {turn_rate}")
         self.model = model.eval()
         self.characters, self.transition, self.record = characters, float(transition), bool(record)
+        if not (math.isfinite(heading_assist) and heading_assist >= 0):
+            raise WalkdiffError(f"heading_assist: expected degrees per second >= 0, got {heading_assist}")
         self.turn_rate = math.radians(turn_rate)
+        self.heading_assist = math.radians(heading_assist)
         self.unit = model.profile.metres_per_unit
         profile = model.profile  # what every frame's poses need, worked out once
         self.skeleton, self.root = model.skeleton, profile.skeleton.index(profile.root)
@@ -214,6 +220,7 @@ class WalkController:
         self.position = np.zeros((characters, 2)) if positions is None else self._positions(positions)
         self.heading = np.zeros(characters) if headings is None else self._headings(headings)
         self.target = self.heading.copy()  # the commanded direction of travel (radians)
+        self.assisted = np.zeros(characters)  # radians each root was turned by the assist, in all
         self.speed: list[float | None] = [None] * characters  # m/s; None: the style's own
         weights, label = style_weights(model, style)
         self.weights = weights[None].repeat(characters, 1)  # the conditioning now (N, S)
@@ -305,12 +312,27 @@ class WalkController:
         encoded = model.encode_control(control, self.weights.float().to(model.device))[:, 0]
         x = model.advance(self.streams, encoded, self.generator)
         raw = model.normalizer.denormalize(x).double().cpu().numpy()
+        self.assist(raw, speed)
         poses = self.poses(raw, self.position, self.heading)
         if self.record:
             self.kept.append((self.frame, raw, self.position.copy(), self.heading.copy()))
         self.position, self.heading = advance_root(self.position, self.heading, raw, model.layout)
         self.frame += 1
         return poses
+
+    def assist(self, raw: np.ndarray, speed: np.ndarray) -> None:
+        """Turns the frames (N, D) of walking characters a little further towards their commanded
+        direction: the heading error left after the frame's own turn closes with time constant
+        `ASSIST_TIME`, at most `heading_assist` radians a second (what game controllers call root motion
+        correction). A standing character is left as it is."""
+        if self.heading_assist == 0:
+            return
+        turn = raw[:, self.model.layout.heading_vel.start]
+        error = np.remainder(self.target - (self.heading + turn) + math.pi, 2 * math.pi) - math.pi
+        limit = self.heading_assist / self.fps
+        extra = np.where(speed > 0, np.clip(error / (ASSIST_TIME * self.fps), -limit, limit), 0.0)
+        raw[:, self.model.layout.heading_vel.start] = turn + extra
+        self.assisted += np.abs(extra)
 
     # ------------------------------------------------------------ poses and takes
 
@@ -363,7 +385,7 @@ class WalkController:
         other.generator = torch.Generator(device=self.model.device)
         other.generator.set_state(self.generator.get_state())
         other.streams = copy.copy(self.streams)  # advancing every row replaces its tensors, never writes them
-        for name in ("position", "heading", "target"):
+        for name in ("position", "heading", "target", "assisted"):
             setattr(other, name, getattr(self, name).copy())
         other.speed, other.ramp, other.labels = list(self.speed), list(self.ramp), list(self.labels)
         other.weights, other.kept = self.weights.clone(), list(self.kept)

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from walkdiff.autoregressive.controller import (
-    TURN_RATE,
     WalkController,
     angle_of,
     checked_speed,
@@ -131,6 +130,7 @@ def settings(ckpt, walker: WalkController, style, speed, seed, fps=None) -> dict
         "sampler": walker.sampler.label(walker.model.diffusion), "model_fps": walker.fps,
         "written_fps": fps or walker.fps, "characters": walker.characters,
         "transition_s": walker.transition, "turn_rate_deg_s": math.degrees(walker.turn_rate),
+        "heading_assist_deg_s": math.degrees(walker.heading_assist),
     }  # fmt: skip
 
 
@@ -239,13 +239,13 @@ def play(
     sampler: str = "ddim",
     steps: int | None = None,
     eta: float | None = None,
-    transition: float = 0.0,
-    turn_rate: float = TURN_RATE,
     fps: float | None = None,
     overwrite: bool = False,
+    **steering,
 ) -> dict:
     """`walkdiff play --script`: the script's key events and commands replayed at the model's frame rate,
-    the frames recorded written as take.bvh, take.glb and take.json (the commands per frame)."""
+    the frames recorded written as take.bvh, take.glb and take.json (the commands per frame).
+    `steering`: the controller's transition, turn_rate and heading_assist."""
     if script is None:
         raise WalkdiffError(
             "play: give a script (JSON lines of timed key events and commands) to play a take headless; "
@@ -255,9 +255,7 @@ def play(
         raise WalkdiffError("--out: give the folder for take.bvh, take.glb and take.json")
     out = output_folder(out)
     check_free(take_files(out, 1), overwrite)
-    walker, style = load_controller(
-        ckpt, style, speed, seed, sampler, steps, eta, transition=transition, turn_rate=turn_rate
-    )
+    walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, **steering)
     events = read_script(script, walker.model)
     frames = round(events[-1].t * walker.fps)
     check_frames("--script", frames, WALK_BYTES_PER_FRAME)
@@ -345,21 +343,20 @@ def control(
     steps: int | None = None,
     eta: float | None = None,
     characters: int = 1,
-    transition: float = 0.0,
-    turn_rate: float = TURN_RATE,
     out: str | None = None,
     overwrite: bool = False,
+    **steering,
 ) -> dict:
     """`walkdiff control`: commands as JSON lines on stdin, one JSON line per frame (and character) on
     stdout as soon as it is made; with `out`, the recorded take written at the end (also when a bad line
-    stops it: the frames made so far are kept)."""
+    stops it: the frames made so far are kept). `steering`: as `play`'s."""
     where = "-"
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, characters), overwrite)
     walker, style = load_controller(
-        ckpt, style, speed, seed, sampler, steps, eta, characters=characters, transition=transition,
-        turn_rate=turn_rate, record=folder is not None,
+        ckpt, style, speed, seed, sampler, steps, eta, characters=characters, record=folder is not None,
+        **steering,
     )  # fmt: skip
     emit(header(walker))
     log, failure, started = [], None, time.perf_counter()

@@ -38,7 +38,7 @@ from http import HTTPStatus
 from importlib import resources
 from pathlib import Path
 
-from walkdiff.autoregressive.controller import TURN_RATE, WalkController, checked_speed
+from walkdiff.autoregressive.controller import WalkController, checked_speed
 from walkdiff.autoregressive.keys import KeyControl
 from walkdiff.autoregressive.play import Replay, load_controller, settings, take_files, write_takes
 from walkdiff.common.errors import WalkdiffError
@@ -423,19 +423,16 @@ def open_page(
     sampler: str = "ddim",
     steps: int | None = None,
     eta: float | None = None,
-    transition: float = 0.0,
-    turn_rate: float = TURN_RATE,
     fps: float | None = None,
     overwrite: bool = False,
+    **steering,
 ) -> PlayPage:
-    """The page's walker loaded and its output folder checked (take.* free unless `overwrite`)."""
+    """The page's walker loaded and its output folder checked (take.* free unless `overwrite`);
+    `steering`: the controller's transition, turn_rate and heading_assist."""
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, 1), overwrite)
-    walker, style = load_controller(
-        ckpt, style, speed, seed, sampler, steps, eta, transition=transition, turn_rate=turn_rate,
-        record=False,
-    )  # fmt: skip
+    walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, record=False, **steering)
     keys = KeyControl(walker.styles, walker.speed_of, style, speed, recording=False)
     return PlayPage(walker, keys, folder, settings(ckpt, walker, style, speed, seed, fps), fps, overwrite)
 

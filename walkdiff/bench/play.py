@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.controller import TURN_RATE, WalkController, controller
+from walkdiff.autoregressive.controller import HEADING_ASSIST, TURN_RATE, WalkController, controller
 from walkdiff.autoregressive.walk import load_walker
 from walkdiff.bench.measure import machine, report
 from walkdiff.common.errors import WalkdiffError
@@ -85,6 +85,7 @@ class Walked:
     heading: np.ndarray  # (F,) radians, before the frame's turn
     labels: list[str | None]
     seconds_per_frame: list[float]
+    assisted: np.ndarray  # (F,) radians the heading assist turned the root by in each frame
     latency: list[dict] = field(default_factory=list)
 
 
@@ -120,7 +121,7 @@ def walk_scenario(make, scenario: Scenario, seed: int, window: int) -> Walked:
     fps = walker.fps
     due = {round(t * fps): command for t, command in scenario.commands if t > 0}
     walker.command(**scenario.commands[0][1])
-    forks, labels, spent = [], [], []
+    forks, labels, spent, assisted = [], [], [], []
     for frame in range(round(scenario.seconds * fps)):
         if frame in due:
             command, kind = due[frame], _kind(due[frame])
@@ -131,9 +132,11 @@ def walk_scenario(make, scenario: Scenario, seed: int, window: int) -> Walked:
         weights = walker.weights[0]
         labels.append(walker.styles[int(weights.argmax())] if float(weights.max()) > 0.999 else None)
         started = time.perf_counter()
+        before = float(walker.assisted[0])
         walker.advance()
         spent.append(time.perf_counter() - started)
-    take = _take(walker, scenario, seed, labels, spent)
+        assisted.append(float(walker.assisted[0]) - before)
+    take = _take(walker, scenario, seed, labels, spent, assisted)
     for frame, kind, command, change, fork in forks:
         for _ in range(window):
             fork.advance()
@@ -143,11 +146,11 @@ def walk_scenario(make, scenario: Scenario, seed: int, window: int) -> Walked:
     return take
 
 
-def _take(walker: WalkController, scenario, seed, labels, spent) -> Walked:
+def _take(walker: WalkController, scenario, seed, labels, spent, assisted) -> Walked:
     raw = np.stack([r[0] for _, r, _, _ in walker.kept])
     root = np.stack([p[0] for _, _, p, _ in walker.kept])
     heading = np.array([h[0] for _, _, _, h in walker.kept])
-    return Walked(scenario, seed, raw, root, heading, labels, spent)
+    return Walked(scenario, seed, raw, root, heading, labels, spent, np.asarray(assisted))
 
 
 def _after(walker: WalkController, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
@@ -173,10 +176,11 @@ def _response(walker: WalkController, fork: WalkController, frame: int, window: 
 
 
 def following(takes: list[Walked], fps: float, unit: float) -> dict:
-    """Heading error 1 s after each turn command, speed error over the second after 1 s of each speed
-    command, the speed left 1-2 s after a stop."""
+    """Heading error 1 s after each turn command and how much of the turn the heading assist made,
+    speed error over the second after 1 s of each speed command, the speed left 1-2 s after a stop."""
     one = round(fps)
     headings: dict[str, list[float]] = {}
+    assists: dict[str, list[float]] = {}
     speed_errors, stopped = [], []
     for take in takes:
         speed = np.linalg.norm(np.diff(take.root, axis=0), axis=1) * fps * unit
@@ -185,7 +189,9 @@ def following(takes: list[Walked], fps: float, unit: float) -> dict:
             if "direction" in command and frame + one < len(take.heading):
                 error = take.heading[frame + one] - math.radians(command["direction"])
                 error = abs(math.degrees(math.remainder(error, 2 * math.pi)))
-                headings.setdefault("_".join(take.scenario.name.split("_")[:2]), []).append(error)
+                kind = "_".join(take.scenario.name.split("_")[:2])
+                headings.setdefault(kind, []).append(error)
+                assists.setdefault(kind, []).append(math.degrees(take.assisted[frame : frame + one].sum()))
             if "speed" in command and frame + 2 * one <= len(speed):
                 mean = float(speed[frame + one : frame + 2 * one].mean())
                 if command["speed"] > 0:
@@ -197,6 +203,7 @@ def following(takes: list[Walked], fps: float, unit: float) -> dict:
             headings.setdefault("straight", []).extend(np.abs(np.degrees(off)).tolist())
     return {
         "heading_error_deg": {k: _spread(v) for k, v in headings.items()},
+        "heading_assist_deg": {k: _spread(v) for k, v in assists.items()},
         "speed_error_relative": _spread(speed_errors),
         "speed_after_stop_m_s": _spread(stopped),
     }
@@ -413,6 +420,7 @@ def bench_play(
     characters: tuple[int, ...] = (1, 4, 8, 16, 32),
     timing_frames: int = 30,
     turn_rate: float = TURN_RATE,
+    heading_assist: float = HEADING_ASSIST,
 ) -> dict:
     """Every scenario for `seeds` seeds, the measures of the module docstring, written to `out`."""
     if hold < 2:
@@ -430,8 +438,9 @@ def bench_play(
 
     def make(seed: int, n: int = 1, pace: float | None = speed) -> WalkController:
         return controller(
-            model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition, turn_rate=turn_rate
-        )
+            model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition, turn_rate=turn_rate,
+            heading_assist=heading_assist,
+        )  # fmt: skip
 
     takes = []
     for scenario in scenarios(styles, speed, hold):
@@ -449,7 +458,8 @@ def bench_play(
     result = {
         "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds, "hold_s": hold,
-        "transition_s": transition, "turn_rate_deg_s": turn_rate, "styles": styles, "speed_m_s": speed,
+        "transition_s": transition, "turn_rate_deg_s": turn_rate,
+        "heading_assist_deg_s": heading_assist, "styles": styles, "speed_m_s": speed,
         "latency": latency(takes, fps, compute, round(fps)),
         "generation": {
             "one_character_ms": round(compute, 3),

@@ -388,6 +388,11 @@ def add_play(bench) -> None:
         help="degrees per second the control bends towards a new direction (default 720, as walkdiff play)",
     )  # fmt: skip
     b.add_argument(
+        "--heading-assist", type=number(0), default=45.0,
+        help="degrees per second the root may be turned beyond the walker's own turn (default 45, as "
+        "walkdiff play; 0: off)",
+    )  # fmt: skip
+    b.add_argument(
         "--characters", default="1,4,8,16,32", help="characters batched, timed (default 1,4,8,16,32)"
     )
     b.add_argument(
@@ -402,6 +407,7 @@ def run_play(args: argparse.Namespace) -> None:
     bench_play(
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
         args.transition, frame_counts(args.characters, "--characters"), args.frames, args.turn_rate,
+        args.heading_assist,
     )  # fmt: skip
 
 

@@ -41,6 +41,11 @@ def walker_options(p: argparse.ArgumentParser) -> None:
         "--turn-rate", type=number(0, above=True), default=720.0,
         help="degrees per second the control's path bends at towards a new direction (default 720)",
     )  # fmt: skip
+    p.add_argument(
+        "--heading-assist", type=number(0), default=45.0,
+        help="degrees per second the root may be turned beyond the walker's own turn towards the commanded "
+        "direction (default 45; 0: the walker's own turning only)",
+    )  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 

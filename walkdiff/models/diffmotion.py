@@ -360,6 +360,12 @@ class AutoregressiveDiffusion(MotionModule):
 
     def sequence_loss(self, poses: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
         """Teacher forcing: the DDPM loss of every frame of (B, L, D) normalised poses in one batch."""
+        eps, noise, _, _ = self.denoise_sequence(poses, control)
+        return F.mse_loss(eps, noise)
+
+    def denoise_sequence(self, poses: torch.Tensor, control: torch.Tensor):
+        """Teacher forcing over (B, L, D) normalised poses: every frame noised to a random step and its
+        noise predicted. Returns (predicted noise, noise, noised frames, steps), each flattened to B * L."""
         b, length, dim = poses.shape
         previous = torch.cat([poses.new_zeros(b, 1, dim), poses[:, :-1]], dim=1)
         if self.training and self.hparams.pose_noise > 0:
@@ -369,10 +375,8 @@ class AutoregressiveDiffusion(MotionModule):
         t = self.diffusion.sample_timesteps(b * length)
         noise = torch.randn_like(x0)
         x_t = self.diffusion.q_sample(x0, t, noise)
-        eps = self.eps_net(
-            x_t, self.eps_net.embed_steps(t), self.eps_net.condition(h.reshape(b * length, -1))
-        )
-        return F.mse_loss(eps, noise)
+        cond = self.eps_net.condition(h.reshape(b * length, -1))
+        return self.eps_net(x_t, self.eps_net.embed_steps(t), cond), noise, x_t, t
 
     def sampling_tables(self, sampler: SamplerChoice | None = None, fused: bool = True) -> FrameTables:
         """What sampling a frame needs, computed once per generation from the current weights: the

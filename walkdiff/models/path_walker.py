@@ -11,6 +11,15 @@ Their spacing is the desired root velocity, their direction the desired heading.
 past the window's end). In generation it is the user's path, read from where the walker actually is:
 the reference is the closest path point to the walker, and the points ahead follow the path at the
 requested speed, so drifting off the path shows up as a path that bends back, which the model follows.
+
+Beyond DiffMotion, training can weigh where each predicted frame puts the body in the world (terms of
+`BodyTerms`, weighted by abar_t as in the styled GAN-DDPM). Teacher forcing predicts frame t from the
+real frames before it, so its clean estimate is set between the real frames t-1 and t+1 and the three
+are run through forward kinematics: the predicted pose and root step must carry the body from the real
+frame before to the real frame after, joint velocities as real ones (`lambda_velocity`), feet that the
+real motion has planted standing still (`lambda_foot`), and feet at their real heights
+(`lambda_foot_height`). Without them the per-frame samples swing the legs out of step with the root:
+feet on the ground slide nearly as fast as the body moves.
 """
 
 from __future__ import annotations
@@ -19,10 +28,12 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
+from walkdiff.models.body_terms import BodyTerms
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
@@ -101,6 +112,9 @@ class PathWalker(AutoregressiveDiffusion):
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         grad_clip: float = 1.0,
+        lambda_velocity: float = 0.0,
+        lambda_foot: float = 0.0,
+        lambda_foot_height: float = 0.0,
     ):
         super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
@@ -162,9 +176,52 @@ class PathWalker(AutoregressiveDiffusion):
     # ------------------------------------------------------------ training
 
     def loss(self, batch: dict) -> torch.Tensor:
+        losses = self.losses(batch)
+        stage = "train" if self.training else "val"
+        for name, value in losses.items():
+            if name != "diffusion" and self._trainer is not None:
+                self.log(f"loss/{name}_{stage}", value, batch_size=len(batch["features"]))
+        h = self.hparams
+        weights = {"diffusion": 1.0, "velocity": h.lambda_velocity, "foot": h.lambda_foot,
+                   "foot_height": h.lambda_foot_height}  # fmt: skip
+        return sum(weights[name] * value for name, value in losses.items())
+
+    def losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        """The noise loss and, when weighted, the body terms (see the module docstring)."""
         raw = self.normalizer.denormalize(batch["features"])
         control = self.encode_control(self.controls_of(raw), batch["style"])
-        return self.sequence_loss(batch["features"], control)
+        eps, noise, x_t, t = self.denoise_sequence(batch["features"], control)
+        losses = {"diffusion": F.mse_loss(eps, noise)}
+        h = self.hparams
+        if max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height) > 0 and raw.shape[1] >= 3:
+            x0_hat = self.diffusion.predict_x0(eps, x_t, t).view_as(raw)
+            weight = self.diffusion.alphas_cumprod[t].view(raw.shape[:2])[:, 1:-1]  # (B, L-2)
+            losses |= self.body_losses(raw, self.normalizer.denormalize(x0_hat), weight)
+        return losses
+
+    def body_losses(self, raw: torch.Tensor, raw_hat: torch.Tensor, weight: torch.Tensor) -> dict:
+        """Terms on (real t-1, predicted t, real t+1) for every inner frame t of raw features (B, L, D)."""
+        body = self._body_terms()
+        around = torch.stack([raw[:, :-2], raw_hat[:, 1:-1], raw[:, 2:]], dim=2)  # (B, L-2, 3, D)
+        positions_hat = body.positions(around)
+        with torch.no_grad():
+            positions = body.positions(torch.stack([raw[:, :-2], raw[:, 1:-1], raw[:, 2:]], dim=2))
+        velocity_hat, velocity = body.velocities(positions_hat), body.velocities(positions)
+        planted = raw[..., self.layout.contacts] > 0.5
+        planted = planted[:, 1:] & planted[:, :-1]  # (B, L-1, feet): planted over a step
+        planted = torch.stack([planted[:, :-1], planted[:, 1:]], dim=2).to(raw.dtype)  # (B, L-2, 2, feet)
+        return {
+            "velocity": (weight * (velocity_hat - velocity).pow(2).mean(dim=(2, 3, 4))).mean(),
+            "foot": (weight * body.foot_slide(velocity_hat, planted).mean(dim=(2, 3))).mean(),
+            "foot_height": (
+                weight * body.foot_height_error(positions_hat[:, :, 1], positions[:, :, 1]).pow(2).mean(-1)
+            ).mean(),
+        }
+
+    def _body_terms(self) -> BodyTerms:
+        if getattr(self, "_body", None) is None or self._body.profile is not self.profile:
+            self._body = BodyTerms(self.profile, self.spec["fps"])
+        return self._body
 
     # ------------------------------------------------------------ generation
 

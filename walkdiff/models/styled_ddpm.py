@@ -61,11 +61,12 @@ from walkdiff.diffusion import (
     step_jumps,
 )
 from walkdiff.models.base import MotionModule
+from walkdiff.models.body_terms import BodyTerms, at_least_float32
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.models.style_encoder import reference_windows
 from walkdiff.motion.footfix import ground, planted_heights
-from walkdiff.motion.representation import decode_root, features_to_positions
+from walkdiff.motion.representation import decode_root
 from walkdiff.spec import DataSpec
 
 log = logging.getLogger(__name__)
@@ -73,10 +74,6 @@ log = logging.getLogger(__name__)
 
 # Discriminator terms as charted: its LSGAN loss and its mean outputs on real and generated windows.
 DISCRIMINATOR_TERMS = {"d": "discriminator", "d_real": "discriminator_real", "d_fake": "discriminator_fake"}
-
-
-def _at_least_float32(x: torch.Tensor) -> torch.Tensor:
-    return x.to(torch.promote_types(x.dtype, torch.float32))
 
 
 class TrainingDiverged(RuntimeError):
@@ -198,35 +195,16 @@ class StyledMotionDiffusion(MotionModule):
         h = self.hparams
         return max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height, h.lambda_position) > 0
 
-    def _positions(self, raw: torch.Tensor) -> torch.Tensor:
-        """World joint positions (B, F, J, 3) of raw features."""
-        if self.skeleton is None:
-            raise WalkdiffError("the position losses need the skeleton: train through `walkdiff fit`")
-        raw = _at_least_float32(raw)
-        offsets = torch.as_tensor(self.skeleton.offsets, dtype=raw.dtype, device=raw.device)
-        # In float32 under bf16 autocast too: FK chains every bone's rotation, and the velocity and foot
-        # terms difference neighbouring frames, which bf16's 3 digits would drown.
-        with torch.autocast(raw.device.type, enabled=False):
-            return features_to_positions(raw, offsets, self.skeleton.parents)
-
-    def _velocities(self, positions: torch.Tensor) -> torch.Tensor:
-        """Joint velocities (B, F-1, J, 3) of positions, in contact speed thresholds."""
-        return torch.diff(positions, dim=1) * (self.spec["fps"] / self.contact_spec.speed_threshold)
-
-    def _in_heights(self, lengths: torch.Tensor) -> torch.Tensor:
-        """Lengths in contact heights (0.0326 leg lengths): the same numbers in any units."""
-        return lengths / self.contact_spec.height_threshold
-
-    def _pose(self, positions: torch.Tensor) -> torch.Tensor:
-        """Joint positions relative to the root (B, F, J, 3), in contact heights."""
-        return self._in_heights(positions - positions[..., :1, :])
+    @property
+    def body(self) -> BodyTerms:
+        """The position terms' forward kinematics and units, on the model's skeleton."""
+        if getattr(self, "_body", None) is None or self._body.profile is not self.profile:
+            self._body = BodyTerms(self.profile, self.spec["fps"])
+        return self._body
 
     @property
     def contact_spec(self):
         return self.profile.contacts
-
-    def _foot_joints(self) -> list[int]:
-        return [self.skeleton.index(name) for name in self.contact_spec.joints]
 
     def denoise(
         self,
@@ -251,7 +229,7 @@ class StyledMotionDiffusion(MotionModule):
     ) -> dict[str, torch.Tensor]:
         h = self.hparams
         weight = self.diffusion.alphas_cumprod[t]  # (B,), see the module docstring
-        out, x0_hat = _at_least_float32(out), _at_least_float32(x0_hat)  # under bf16 autocast too
+        out, x0_hat = at_least_float32(out), at_least_float32(x0_hat)  # under bf16 autocast too
         raw_hat = self.normalizer.denormalize(x0_hat)
         raw = self.normalizer.denormalize(batch["features"])
         contacts = self.layout.contacts
@@ -261,28 +239,25 @@ class StyledMotionDiffusion(MotionModule):
                 weight * (raw_hat[..., contacts] - raw[..., contacts]).pow(2).mean(dim=(1, 2))
             ).mean(),
             "root": (
-                weight * self._in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
+                weight * self.body.in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
             ).mean(),
         }
         if self.uses_positions:
-            positions_hat = self._positions(raw_hat)
+            body = self.body
+            positions_hat = body.positions(raw_hat)
             with torch.no_grad():
-                positions = self._positions(raw)
-            velocity_hat, velocity = self._velocities(positions_hat), self._velocities(positions)
+                positions = body.positions(raw)
+            velocity_hat, velocity = body.velocities(positions_hat), body.velocities(positions)
             losses["velocity"] = (weight * (velocity_hat - velocity).pow(2).mean(dim=(1, 2, 3))).mean()
-            pose_error = (self._pose(positions_hat) - self._pose(positions)).pow(2).mean(dim=(1, 2, 3))
+            pose_error = (body.pose(positions_hat) - body.pose(positions)).pow(2).mean(dim=(1, 2, 3))
             losses["position"] = (weight * pose_error).mean()
             # A foot is planted over a step when the real motion labels it in contact at both ends.
             planted = raw[..., contacts] > 0.5
             planted = (planted[:, 1:] & planted[:, :-1]).to(raw.dtype)
-            feet = self._foot_joints()
-            foot_speed = velocity_hat[:, :, feet, :][..., [0, 2]].pow(2).sum(dim=-1)
-            losses["foot"] = (weight * (foot_speed * planted).mean(dim=(1, 2))).mean()
+            losses["foot"] = (weight * body.foot_slide(velocity_hat, planted).mean(dim=(1, 2))).mean()
             if h.lambda_foot_height > 0:
-                height_error = positions_hat[..., feet, 1] - positions[..., feet, 1]
-                losses["foot_height"] = (
-                    weight * self._in_heights(height_error).pow(2).mean(dim=(1, 2))
-                ).mean()
+                height_error = body.foot_height_error(positions_hat, positions)
+                losses["foot_height"] = (weight * height_error.pow(2).mean(dim=(1, 2))).mean()
         if adversarial:
             fake = self.discriminator(x0_hat, batch["style"], batch["content"])
             losses["adv"] = (weight * 0.5 * (fake - 1).pow(2)).mean()
