@@ -186,7 +186,8 @@ def test_the_command_lines_turn_as_the_api_does():
 
     for command in (["control"], ["play"], ["bench", "play", "--evaluator", "e.ckpt", "--out", "o.json"]):
         args = build_parser().parse_args([*command, "--ckpt", "x.ckpt"])
-        assert args.turn_rate == TURN_RATE and args.heading_assist == HEADING_ASSIST
+        assert args.turn_rate == TURN_RATE and args.heading_assist == HEADING_ASSIST and args.foot_lock
+        assert not build_parser().parse_args([*command, "--ckpt", "x.ckpt", "--no-foot-lock"]).foot_lock
 
 
 def test_the_api_steps_poses_and_takes(ckpt, tmp_path):
@@ -495,3 +496,59 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
         assert set(verdict) == {"value", "target", "pass"} and verdict["pass"] in (True, False, None), name
     assert main(argv) == 1
     assert "would overwrite" in capsys.readouterr().err
+
+
+def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_when_far(ckpt):
+    """A foot the walker's contacts plant stays where it touched down while the body walks on (two-bone
+    IK reaches it exactly), its offset fades out over BLEND frames after lift-off, the other leg is left
+    alone, and an anchor the body has walked too far from is let go."""
+    from walkdiff.autoregressive.foot_lock import BLEND, MAX_OFFSET, FootLock
+    from walkdiff.motion.representation import features_to_positions
+
+    model = load_walker(ckpt)
+    skeleton, spec, layout = model.skeleton, model.profile.contacts, model.layout
+    offsets = torch.from_numpy(skeleton.offsets).double()
+    heel = skeleton.index(spec.joints[0])
+    leg = spec.height_threshold / 0.0326
+    lock = FootLock(model, 1)
+    pose = model.normalizer.mean.double().numpy()[None].copy()
+    pose[:, layout.contacts] = [1.0, 1.0, 0.0, 0.0]  # the left foot planted, the right in the air
+
+    def heel_at(raw, position):
+        world = features_to_positions(torch.from_numpy(raw), offsets, skeleton.parents, position, 0.3)
+        return world[0, heel, [0, 2]].numpy()
+
+    places, raws = [], []
+    for frame in range(5):
+        position = np.array([0.0, 0.03 * leg * frame])  # the body walks on, the foot would slide with it
+        raw = pose.copy()
+        lock.apply(raw, position[None], np.array([0.3]))
+        places.append(heel_at(raw, position))
+        raws.append(raw)
+    np.testing.assert_allclose(places, np.repeat(places[:1], 5, axis=0), atol=1e-6 * leg)
+    right_heel = skeleton.index(spec.joints[2])
+    right_knee = skeleton.parents[right_heel]
+    right = [j for j in range(skeleton.num_joints) if j not in (heel, skeleton.parents[heel],
+             skeleton.parents[skeleton.parents[heel]])]  # fmt: skip
+    channels = np.concatenate([np.arange(6) + layout.rotations.start + 6 * j for j in right])
+    np.testing.assert_array_equal(raws[-1][:, channels], pose[:, channels])  # only the left leg moved
+    assert right_knee in right and not np.array_equal(raws[-1], pose)
+    np.testing.assert_array_equal(raws[0], pose)  # no offset on landing
+    # Lift-off: the offset falls by equal steps to nothing over BLEND frames.
+    lifted = pose.copy()
+    lifted[:, layout.contacts] = 0.0
+    position = np.array([0.0, 0.03 * leg * 4])
+    free = heel_at(lifted, position)
+    gaps = []
+    for _ in range(BLEND + 1):
+        raw = lifted.copy()
+        lock.apply(raw, position[None], np.array([0.3]))
+        gaps.append(np.linalg.norm(heel_at(raw, position) - free))
+    first = np.linalg.norm(places[-1] - free)
+    np.testing.assert_allclose(gaps, first * (1 - np.arange(1, BLEND + 2) / (BLEND + 1)), atol=1e-6 * leg)
+    # Planted again, and the body jumps further than MAX_OFFSET leg lengths: the foot is put down anew.
+    lock.apply(pose.copy(), position[None], np.array([0.3]))
+    far = position + [0.0, 1.5 * MAX_OFFSET * leg]
+    raw = pose.copy()
+    lock.apply(raw, far[None], np.array([0.3]))
+    np.testing.assert_array_equal(raw, pose)

@@ -19,6 +19,7 @@ from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.xia import list_clips, load
 from walkdiff.models.path_walker import PathWalker, advance_root, local_offsets
+from walkdiff.models.pose_mlp import PoseMLP
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import FeatureLayout, encode, root_trajectory, yaw_matrix
@@ -200,6 +201,13 @@ def test_config_trains_through_the_cli(synthetic_root, tmp_path, monkeypatch):
     model = load_walker(tmp_path / "checkpoints" / "walk_xia" / "last.ckpt")
     assert model.hparams.hidden == 32 and model.ahead == [0, 3, 6, 9, 12, 15]
     assert model.style_speed[0] > 0 and model.control_normalizer.mean.abs().sum() > 0  # fitted
+    # The shipped walker reads whole poses with its MLP (no fused twin) and trains with the body terms.
+    assert isinstance(model.eps_net, PoseMLP) and model.hparams.lambda_foot > 0
+    path = Polyline.of([[0, 0], [0, 20]])
+    raw, _ = model.generate(path, torch.tensor([0]), torch.tensor([12.0]), 3, torch.Generator().manual_seed(0))
+    assert raw.shape == (1, 3, model.spec["feature_dim"]) and np.isfinite(raw).all()
+    with pytest.raises(WalkdiffError, match="model.denoiser must be timegrad or mlp"):
+        PathWalker(model.spec, denoiser="unet")
 
 
 def test_a_path_too_long_for_memory_is_refused_before_walking(trained, tmp_path, capsys):

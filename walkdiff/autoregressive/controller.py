@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from walkdiff.autoregressive.foot_lock import FootLock
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root
@@ -193,6 +194,7 @@ class WalkController:
         transition: float = 0.0,
         turn_rate: float = TURN_RATE,
         heading_assist: float = HEADING_ASSIST,
+        foot_lock: bool = True,
         positions=None,
         headings=None,
         record: bool = True,
@@ -221,6 +223,7 @@ class WalkController:
         self.heading = np.zeros(characters) if headings is None else self._headings(headings)
         self.target = self.heading.copy()  # the commanded direction of travel (radians)
         self.assisted = np.zeros(characters)  # radians each root was turned by the assist, in all
+        self.lock = FootLock(model, characters) if foot_lock else None
         self.speed: list[float | None] = [None] * characters  # m/s; None: the style's own
         weights, label = style_weights(model, style)
         self.weights = weights[None].repeat(characters, 1)  # the conditioning now (N, S)
@@ -313,6 +316,8 @@ class WalkController:
         x = model.advance(self.streams, encoded, self.generator)
         raw = model.normalizer.denormalize(x).double().cpu().numpy()
         self.assist(raw, speed)
+        if self.lock is not None:
+            self.lock.apply(raw, self.position, self.heading)
         poses = self.poses(raw, self.position, self.heading)
         if self.record:
             self.kept.append((self.frame, raw, self.position.copy(), self.heading.copy()))
@@ -389,6 +394,7 @@ class WalkController:
             setattr(other, name, getattr(self, name).copy())
         other.speed, other.ramp, other.labels = list(self.speed), list(self.ramp), list(self.labels)
         other.weights, other.kept = self.weights.clone(), list(self.kept)
+        other.lock = None if self.lock is None else self.lock.copy()
         return other
 
     # ------------------------------------------------------------ checks

@@ -130,7 +130,7 @@ def settings(ckpt, walker: WalkController, style, speed, seed, fps=None) -> dict
         "sampler": walker.sampler.label(walker.model.diffusion), "model_fps": walker.fps,
         "written_fps": fps or walker.fps, "characters": walker.characters,
         "transition_s": walker.transition, "turn_rate_deg_s": math.degrees(walker.turn_rate),
-        "heading_assist_deg_s": math.degrees(walker.heading_assist),
+        "heading_assist_deg_s": math.degrees(walker.heading_assist), "foot_lock": walker.lock is not None,
     }  # fmt: skip
 
 
@@ -245,7 +245,7 @@ def play(
 ) -> dict:
     """`walkdiff play --script`: the script's key events and commands replayed at the model's frame rate,
     the frames recorded written as take.bvh, take.glb and take.json (the commands per frame).
-    `steering`: the controller's transition, turn_rate and heading_assist."""
+    `steering`: the controller's transition, turn_rate, heading_assist and foot_lock."""
     if script is None:
         raise WalkdiffError(
             "play: give a script (JSON lines of timed key events and commands) to play a take headless; "

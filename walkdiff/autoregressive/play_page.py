@@ -428,7 +428,7 @@ def open_page(
     **steering,
 ) -> PlayPage:
     """The page's walker loaded and its output folder checked (take.* free unless `overwrite`);
-    `steering`: the controller's transition, turn_rate and heading_assist."""
+    `steering`: the controller's transition, turn_rate, heading_assist and foot_lock."""
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, 1), overwrite)

@@ -421,6 +421,7 @@ def bench_play(
     timing_frames: int = 30,
     turn_rate: float = TURN_RATE,
     heading_assist: float = HEADING_ASSIST,
+    foot_lock: bool = True,
 ) -> dict:
     """Every scenario for `seeds` seeds, the measures of the module docstring, written to `out`."""
     if hold < 2:
@@ -439,7 +440,7 @@ def bench_play(
     def make(seed: int, n: int = 1, pace: float | None = speed) -> WalkController:
         return controller(
             model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition, turn_rate=turn_rate,
-            heading_assist=heading_assist,
+            heading_assist=heading_assist, foot_lock=foot_lock,
         )  # fmt: skip
 
     takes = []
@@ -459,7 +460,7 @@ def bench_play(
         "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds, "hold_s": hold,
         "transition_s": transition, "turn_rate_deg_s": turn_rate,
-        "heading_assist_deg_s": heading_assist, "styles": styles, "speed_m_s": speed,
+        "heading_assist_deg_s": heading_assist, "foot_lock": foot_lock, "styles": styles, "speed_m_s": speed,
         "latency": latency(takes, fps, compute, round(fps)),
         "generation": {
             "one_character_ms": round(compute, 3),

@@ -4,6 +4,7 @@ many streams keep real time batched."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -31,13 +32,26 @@ def _stream_walker(ckpt: str | None, speed: float):
         dataset="xia", feature_dim=8 + 6 * 31, num_joints=31, window=24, fps=30.0,
         styles=tuple(f"style{i}" for i in range(8)), contents=("walk",),
     )  # fmt: skip
-    walker = PathWalker(spec).eval()
+    walker = PathWalker(spec, **_shipped_walker()).eval()
     layout, normalizer = walker.layout, walker.normalizer
     for part in (layout.root_vel, layout.heading_vel):
         normalizer.std[part] = 1e-4
     normalizer.mean[layout.root_vel] = torch.tensor([0.0, speed / spec["fps"]])  # forward is +z
     walker.style_speed.fill_(speed)
     return walker
+
+
+def _shipped_walker() -> dict:
+    """The model settings of conf/walk_xia.yaml (the repository's), so the untrained walker has its size."""
+    from omegaconf import OmegaConf
+
+    config = Path(__file__).resolve().parents[2] / "conf" / "walk_xia.yaml"
+    if not config.is_file():
+        raise WalkdiffError(
+            f"bench stream without --walker sizes the walker as {config} does; run it from the "
+            "repository, or give --walker"
+        )
+    return dict(OmegaConf.to_container(OmegaConf.load(config).model.init_args))
 
 
 def _realtime_latency(push, arrivals: list[float], frame_times) -> tuple[list[float], list[float], float]:

@@ -393,6 +393,10 @@ def add_play(bench) -> None:
         "walkdiff play; 0: off)",
     )  # fmt: skip
     b.add_argument(
+        "--no-foot-lock", dest="foot_lock", action="store_false",
+        help="leave the feet where the walker puts them (default: locked, as walkdiff play)",
+    )  # fmt: skip
+    b.add_argument(
         "--characters", default="1,4,8,16,32", help="characters batched, timed (default 1,4,8,16,32)"
     )
     b.add_argument(
@@ -407,7 +411,7 @@ def run_play(args: argparse.Namespace) -> None:
     bench_play(
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
         args.transition, frame_counts(args.characters, "--characters"), args.frames, args.turn_rate,
-        args.heading_assist,
+        args.heading_assist, args.foot_lock,
     )  # fmt: skip
 
 

@@ -46,6 +46,10 @@ def walker_options(p: argparse.ArgumentParser) -> None:
         help="degrees per second the root may be turned beyond the walker's own turn towards the commanded "
         "direction (default 45; 0: the walker's own turning only)",
     )  # fmt: skip
+    p.add_argument(
+        "--no-foot-lock", dest="foot_lock", action="store_false",
+        help="leave the feet where the walker puts them (default: a planted foot is held where it landed)",
+    )  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 

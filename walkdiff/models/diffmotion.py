@@ -352,31 +352,32 @@ class AutoregressiveDiffusion(MotionModule):
         schedule: str,
         beta_start: float,
         beta_end: float,
+        eps_net: nn.Module | None = None,
+        prediction: str = "eps",
     ) -> None:
+        """The networks: `eps_net` in place of TimeGrad's, predicting `prediction` (eps, x0 or v)."""
         dim = self.spec["feature_dim"]
-        self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, "eps")
+        self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
         self.encoder = ATEncoder(dim, control_dim, hidden, lstm_layers, control_hidden, dropout)
-        self.eps_net = EpsNetwork(dim, hidden, channels, residual_layers, dilation_cycle)
+        self.eps_net = eps_net or EpsNetwork(dim, hidden, channels, residual_layers, dilation_cycle)
 
     def sequence_loss(self, poses: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
         """Teacher forcing: the DDPM loss of every frame of (B, L, D) normalised poses in one batch."""
-        eps, noise, _, _ = self.denoise_sequence(poses, control)
-        return F.mse_loss(eps, noise)
+        return F.mse_loss(*self.denoise_sequence(poses, control)[:2])
 
     def denoise_sequence(self, poses: torch.Tensor, control: torch.Tensor):
-        """Teacher forcing over (B, L, D) normalised poses: every frame noised to a random step and its
-        noise predicted. Returns (predicted noise, noise, noised frames, steps), each flattened to B * L."""
+        """Teacher forcing over (B, L, D) normalised poses: every frame noised to a random step and the
+        network run. Returns (output, its target, noised frames, steps), each flattened to B * L."""
         b, length, dim = poses.shape
         previous = torch.cat([poses.new_zeros(b, 1, dim), poses[:, :-1]], dim=1)
         if self.training and self.hparams.pose_noise > 0:
             previous = previous + self.hparams.pose_noise * torch.randn_like(previous)
         h, _ = self.encoder(previous, control)
-        x0 = poses.reshape(b * length, dim)
-        t = self.diffusion.sample_timesteps(b * length)
-        noise = torch.randn_like(x0)
-        x_t = self.diffusion.q_sample(x0, t, noise)
+        x0, t = poses.reshape(b * length, dim), self.diffusion.sample_timesteps(b * length)
+        x_t = self.diffusion.q_sample(x0, t, noise := torch.randn_like(x0))
         cond = self.eps_net.condition(h.reshape(b * length, -1))
-        return self.eps_net(x_t, self.eps_net.embed_steps(t), cond), noise, x_t, t
+        target = self.diffusion.training_target(x0, noise, t)
+        return self.eps_net(x_t, self.eps_net.embed_steps(t), cond), target, x_t, t
 
     def sampling_tables(self, sampler: SamplerChoice | None = None, fused: bool = True) -> FrameTables:
         """What sampling a frame needs, computed once per generation from the current weights: the
@@ -384,8 +385,8 @@ class AutoregressiveDiffusion(MotionModule):
         the eps network laid out for fewer operations (`FusedEps`; the same numbers as the module)."""
         steps = (sampler or SamplerChoice()).table(self.diffusion)
         embeddings = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
-        fused = FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
-        return FrameTables(steps, embeddings, fused)
+        fused = fused and isinstance(self.eps_net, EpsNetwork)  # only TimeGrad's network has a fused twin
+        return FrameTables(steps, embeddings, FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None)
 
     def sample_frame(
         self, h: torch.Tensor, tables: FrameTables, generator: torch.Generator | None

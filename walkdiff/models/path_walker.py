@@ -35,6 +35,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.body_terms import BodyTerms
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
+from walkdiff.models.pose_mlp import PoseMLP
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
 from walkdiff.spec import DataSpec
@@ -115,6 +116,10 @@ class PathWalker(AutoregressiveDiffusion):
         lambda_velocity: float = 0.0,
         lambda_foot: float = 0.0,
         lambda_foot_height: float = 0.0,
+        denoiser: str = "timegrad",
+        denoiser_hidden: int = 512,
+        denoiser_layers: int = 3,
+        prediction: str = "eps",
     ):
         super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
@@ -125,9 +130,14 @@ class PathWalker(AutoregressiveDiffusion):
             )
         self.ahead = list(range(0, lookahead + 1, control_every))
         control_dim = 2 * len(self.ahead)
+        if denoiser not in ("timegrad", "mlp"):
+            raise WalkdiffError(f"model.denoiser must be timegrad or mlp, got {denoiser!r}")
+        eps_net = None
+        if denoiser == "mlp":  # see pose_mlp.py: TimeGrad's network samples the legs from the noise
+            eps_net = PoseMLP(spec["feature_dim"], hidden, denoiser_hidden, denoiser_layers)
         self.build(
             control_dim, hidden, lstm_layers, control_hidden, channels, residual_layers,
-            dilation_cycle, dropout, timesteps, schedule, beta_start, beta_end,
+            dilation_cycle, dropout, timesteps, schedule, beta_start, beta_end, eps_net, prediction,
         )  # fmt: skip
         self.style = nn.Embedding(len(spec["styles"]), control_hidden)
         self.control_normalizer = Normalizer(control_dim)
@@ -190,11 +200,11 @@ class PathWalker(AutoregressiveDiffusion):
         """The noise loss and, when weighted, the body terms (see the module docstring)."""
         raw = self.normalizer.denormalize(batch["features"])
         control = self.encode_control(self.controls_of(raw), batch["style"])
-        eps, noise, x_t, t = self.denoise_sequence(batch["features"], control)
-        losses = {"diffusion": F.mse_loss(eps, noise)}
+        out, target, x_t, t = self.denoise_sequence(batch["features"], control)
+        losses = {"diffusion": F.mse_loss(out, target)}
         h = self.hparams
         if max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height) > 0 and raw.shape[1] >= 3:
-            x0_hat = self.diffusion.predict_x0(eps, x_t, t).view_as(raw)
+            x0_hat = self.diffusion.predict_x0(out, x_t, t).view_as(raw)
             weight = self.diffusion.alphas_cumprod[t].view(raw.shape[:2])[:, 1:-1]  # (B, L-2)
             losses |= self.body_losses(raw, self.normalizer.denormalize(x0_hat), weight)
         return losses

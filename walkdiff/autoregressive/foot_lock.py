@@ -1,0 +1,113 @@
+"""Feet that stay where they were put down, frame by frame as a live walker makes them (a foot lock).
+
+`footfix.fix_feet` pins each contact of a finished clip to the mean of where it slid; a live walker has
+no later frames to average over. Here a foot joint (heel or toe) that the walker's contact channels put
+on the ground is held where it touched down: the first frame of a contact sets its anchor on the ground,
+and while the contact lasts the ankle is moved along the ground by the offset that puts the contacting
+joints back on their anchors (the mean offset when heel and toe both touch), and the leg reaches the
+moved ankle by `footfix.bend_leg`'s two-bone IK (hip and knee; the foot keeps its world orientation).
+When the foot lifts off, the last offset fades out over `blend` frames so the leg does not snap. Heights
+are left alone. An offset longer than `MAX_OFFSET` leg lengths means the body has walked away from the
+anchor (a contact the model held too long): the foot is put down again where it is.
+
+Only the rotation channels of the hips, knees and ankles of the frames it moves change; what the walker
+feeds back to itself is its own frame, so the lock never changes the motion it goes on to make.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from walkdiff.motion.footfix import bend_leg
+from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion.representation import yaw_matrix
+from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
+
+MAX_OFFSET = 0.25  # leg lengths an anchor may lie from where the model puts its foot
+BLEND = 3  # frames the offset fades out over after a foot lifts off
+
+
+class FootLock:
+    """The lock's state for N characters of one walker model (see the module docstring)."""
+
+    def __init__(self, model, characters: int, blend: int = BLEND):
+        skeleton, spec = model.skeleton, model.profile.contacts
+        self.layout, self.parents, self.blend = model.layout, skeleton.parents, blend
+        self.offsets = torch.from_numpy(skeleton.offsets).double()
+        joints = [skeleton.index(name) for name in spec.joints]  # left heel, left toe, right heel, right toe
+        self.feet = [joints[:2], joints[2:]]
+        self.max_offset = MAX_OFFSET * spec.height_threshold / 0.0326  # contact heights are 0.0326 legs
+        self.anchors = np.full((characters, 4, 2), np.nan)  # (x, z) each contact joint is held at
+        self.offset = np.zeros((characters, 2, 2))  # the offset each foot's ankle got last frame
+        self.fading = np.zeros((characters, 2), dtype=int)  # frames of fade left after a lift-off
+
+    def copy(self) -> FootLock:
+        other = object.__new__(FootLock)
+        other.__dict__ = dict(self.__dict__)
+        for name in ("anchors", "offset", "fading"):
+            setattr(other, name, getattr(self, name).copy())
+        return other
+
+    def apply(self, raw: np.ndarray, position: np.ndarray, heading: np.ndarray) -> None:
+        """Locks the feet of one frame of raw features (N, D) in place, the characters' roots at
+        `position` (N, 2) facing `heading` (N,)."""
+        layout = self.layout
+        sixd = torch.from_numpy(raw[:, layout.rotations]).double().unflatten(-1, (layout.num_joints, 6))
+        rotations = sixd_to_matrix(sixd)
+        rotations[:, 0] = yaw_matrix(torch.from_numpy(heading).double()) @ rotations[:, 0]
+        translations = self.offsets.expand(len(raw), -1, -1).clone()
+        root = np.stack([position[:, 0], raw[:, layout.root_height.start], position[:, 1]], axis=-1)
+        translations[:, 0] = torch.from_numpy(root)
+        world, world_rot = forward_kinematics(rotations, translations, self.parents, return_rotations=True)
+        world, world_rot = world.numpy(), world_rot.numpy()
+        contacts = raw[:, layout.contacts] > 0.5
+        local = rotations.numpy()
+        for side, (heel, toe) in enumerate(self.feet):
+            places = world[:, [heel, toe]][..., [0, 2]]
+            offset = self._offset(side, places, contacts[:, 2 * side : 2 * side + 2])
+            rows = np.flatnonzero(np.abs(offset).sum(-1) > 0)
+            if len(rows) == 0:
+                continue
+            knee = int(self.parents[heel])
+            hip = int(self.parents[knee])
+            target = world[rows, heel] + np.insert(offset[rows], 1, 0.0, axis=-1)
+            hip_turn, knee_turn = bend_leg(
+                world[rows, hip], world[rows, knee], world[rows, heel], world_rot[rows, hip], target
+            )
+            hip_world, knee_world = hip_turn @ world_rot[rows, hip], knee_turn @ world_rot[rows, knee]
+            parent_world = world_rot[rows, int(self.parents[hip])]
+            local[rows, hip] = np.swapaxes(parent_world, -1, -2) @ hip_world
+            local[rows, knee] = np.swapaxes(hip_world, -1, -2) @ knee_world
+            local[rows, heel] = np.swapaxes(knee_world, -1, -2) @ world_rot[rows, heel]
+            # Only the moved joints' channels: the others keep the walker's numbers (writing them again
+            # would orthonormalise their 6D rotations, the same pose in other numbers).
+            for joint in (hip, knee, heel):
+                start = layout.rotations.start + 6 * joint
+                raw[rows, start : start + 6] = matrix_to_6d(torch.from_numpy(local[rows, joint])).numpy()
+
+    def _offset(self, side: int, places: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """The ankle offset (N, 2) of one foot this frame from its joints' (x, z) `places` (N, 2, 2) and
+        contacts (N, 2), the state moved on."""
+        anchors = self.anchors[:, 2 * side : 2 * side + 2]  # a view: written through
+        last = self.offset[:, side]
+        # A joint touching down is anchored where it lands (moved with its foot as the lock has it now).
+        landing = contact & np.isnan(anchors[..., 0])
+        anchors[landing] = (places + last[:, None])[landing]
+        anchors[~contact] = np.nan
+        held = contact.any(axis=1)
+        pulls = np.where(contact[..., None], anchors - places, 0.0)
+        offset = pulls.sum(axis=1) / np.maximum(contact.sum(axis=1), 1)[:, None]
+        far = held & (np.linalg.norm(offset, axis=-1) > self.max_offset)
+        anchors[far] = np.where(contact[far][..., None], places[far], np.nan)  # put down again
+        offset[far] = 0.0
+        # Lift-off: the last offset fades out; a foot put down again starts from no offset.
+        lifted = ~held & (np.abs(last).sum(-1) > 0) & (self.fading[:, side] == 0)
+        self.fading[lifted, side] = self.blend + 1
+        fading = ~held & (self.fading[:, side] > 0)
+        self.fading[fading, side] -= 1
+        left = self.fading[:, side]  # frames of the fade still to come: the offset falls by 1 / (left + 1)
+        offset[fading] = (last * (left / (left + 1))[:, None])[fading]
+        self.fading[held, side] = 0
+        self.offset[:, side] = offset
+        return offset
