@@ -500,8 +500,8 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
 
 def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_when_far(ckpt):
     """A foot the walker's contacts plant stays where it touched down while the body walks on (two-bone
-    IK reaches it exactly), its offset fades out over BLEND frames after lift-off, the other leg is left
-    alone, and an anchor the body has walked too far from is let go."""
+    IK reaches it exactly), its offset fades out over BLEND frames once it is off the ground, the other
+    leg is left alone, and an anchor the body has walked too far from is dragged along."""
     from walkdiff.autoregressive.foot_lock import BLEND, MAX_OFFSET, FootLock
     from walkdiff.motion.representation import features_to_positions
 
@@ -534,9 +534,16 @@ def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_
     np.testing.assert_array_equal(raws[-1][:, channels], pose[:, channels])  # only the left leg moved
     assert right_knee in right and not np.array_equal(raws[-1], pose)
     np.testing.assert_array_equal(raws[0], pose)  # no offset on landing
-    # Lift-off: the offset falls by equal steps to nothing over BLEND frames.
+    # The contacts off but the foot still on the ground: it stays where it is.
+    low = pose.copy()
+    low[:, layout.contacts] = 0.0
+    lock.apply(low, position[None], np.array([0.3]))
+    np.testing.assert_allclose(heel_at(low, position), places[0], atol=1e-6 * leg)
+    # Lift-off (the contacts off and the foot a contact height up): the offset falls by equal steps to
+    # nothing over BLEND frames.
     lifted = pose.copy()
     lifted[:, layout.contacts] = 0.0
+    lifted[:, layout.root_height] += 1.5 * spec.height_threshold
     position = np.array([0.0, 0.03 * leg * 4])
     free = heel_at(lifted, position)
     gaps = []
@@ -546,9 +553,11 @@ def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_
         gaps.append(np.linalg.norm(heel_at(raw, position) - free))
     first = np.linalg.norm(places[-1] - free)
     np.testing.assert_allclose(gaps, first * (1 - np.arange(1, BLEND + 2) / (BLEND + 1)), atol=1e-6 * leg)
-    # Planted again, and the body jumps further than MAX_OFFSET leg lengths: the foot is put down anew.
+    # Planted again, and the body jumps further than MAX_OFFSET leg lengths: the anchor is dragged along,
+    # the foot held that far behind where the walker puts it.
     lock.apply(pose.copy(), position[None], np.array([0.3]))
     far = position + [0.0, 1.5 * MAX_OFFSET * leg]
     raw = pose.copy()
     lock.apply(raw, far[None], np.array([0.3]))
-    np.testing.assert_array_equal(raw, pose)
+    dragged = np.linalg.norm(heel_at(raw, far) - heel_at(pose, far))
+    assert dragged == pytest.approx(MAX_OFFSET * leg, rel=1e-6)

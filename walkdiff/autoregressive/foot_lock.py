@@ -3,12 +3,13 @@
 `footfix.fix_feet` pins each contact of a finished clip to the mean of where it slid; a live walker has
 no later frames to average over. Here a foot joint (heel or toe) that the walker's contact channels put
 on the ground is held where it touched down: the first frame of a contact sets its anchor on the ground,
-and while the contact lasts the ankle is moved along the ground by the offset that puts the contacting
-joints back on their anchors (the mean offset when heel and toe both touch), and the leg reaches the
+and while the contact lasts (and after it, until the joint has risen a contact height above where it
+landed: a foot does not slide off its place as it is lifted) the ankle is moved along the ground by the
+offset that puts the held joints back on their anchors (the mean offset when heel and toe both are), and the leg reaches the
 moved ankle by `footfix.bend_leg`'s two-bone IK (hip and knee; the foot keeps its world orientation).
 When the foot lifts off, the last offset fades out over `blend` frames so the leg does not snap. Heights
-are left alone. An offset longer than `MAX_OFFSET` leg lengths means the body has walked away from the
-anchor (a contact the model held too long): the foot is put down again where it is.
+are left alone. An offset is never longer than `MAX_OFFSET` leg lengths: a contact the model holds
+longer than its stride allows drags the anchor along with the body.
 
 Only the rotation channels of the hips, knees and ankles of the frames it moves change; what the walker
 feeds back to itself is its own frame, so the lock never changes the motion it goes on to make.
@@ -25,7 +26,8 @@ from walkdiff.motion.representation import yaw_matrix
 from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
 
 MAX_OFFSET = 0.25  # leg lengths an anchor may lie from where the model puts its foot
-BLEND = 3  # frames the offset fades out over after a foot lifts off
+CONTACT = 0.5  # a contact channel above this puts the joint on the ground
+BLEND = 6  # frames the offset fades out over after a foot lifts off
 
 
 class FootLock:
@@ -39,13 +41,15 @@ class FootLock:
         self.feet = [joints[:2], joints[2:]]
         self.max_offset = MAX_OFFSET * spec.height_threshold / 0.0326  # contact heights are 0.0326 legs
         self.anchors = np.full((characters, 4, 2), np.nan)  # (x, z) each contact joint is held at
+        self.landed = np.full((characters, 4), np.nan)  # the height it landed at
+        self.height = spec.height_threshold
         self.offset = np.zeros((characters, 2, 2))  # the offset each foot's ankle got last frame
         self.fading = np.zeros((characters, 2), dtype=int)  # frames of fade left after a lift-off
 
     def copy(self) -> FootLock:
         other = object.__new__(FootLock)
         other.__dict__ = dict(self.__dict__)
-        for name in ("anchors", "offset", "fading"):
+        for name in ("anchors", "landed", "offset", "fading"):
             setattr(other, name, getattr(self, name).copy())
         return other
 
@@ -61,11 +65,11 @@ class FootLock:
         translations[:, 0] = torch.from_numpy(root)
         world, world_rot = forward_kinematics(rotations, translations, self.parents, return_rotations=True)
         world, world_rot = world.numpy(), world_rot.numpy()
-        contacts = raw[:, layout.contacts] > 0.5
+        contacts = raw[:, layout.contacts] > CONTACT
         local = rotations.numpy()
         for side, (heel, toe) in enumerate(self.feet):
-            places = world[:, [heel, toe]][..., [0, 2]]
-            offset = self._offset(side, places, contacts[:, 2 * side : 2 * side + 2])
+            feet = world[:, [heel, toe]]
+            offset = self._offset(side, feet[..., [0, 2]], feet[..., 1], contacts[:, 2 * side : 2 * side + 2])
             rows = np.flatnonzero(np.abs(offset).sum(-1) > 0)
             if len(rows) == 0:
                 continue
@@ -86,21 +90,29 @@ class FootLock:
                 start = layout.rotations.start + 6 * joint
                 raw[rows, start : start + 6] = matrix_to_6d(torch.from_numpy(local[rows, joint])).numpy()
 
-    def _offset(self, side: int, places: np.ndarray, contact: np.ndarray) -> np.ndarray:
-        """The ankle offset (N, 2) of one foot this frame from its joints' (x, z) `places` (N, 2, 2) and
-        contacts (N, 2), the state moved on."""
-        anchors = self.anchors[:, 2 * side : 2 * side + 2]  # a view: written through
+    def _offset(self, side: int, places: np.ndarray, heights: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """The ankle offset (N, 2) of one foot this frame from its joints' (x, z) `places` (N, 2, 2),
+        `heights` (N, 2) and contacts (N, 2), the state moved on."""
+        anchors = self.anchors[:, 2 * side : 2 * side + 2]  # views: written through
+        landed = self.landed[:, 2 * side : 2 * side + 2]
         last = self.offset[:, side]
+        # A joint stays held after its contact ends until it rises a contact height above where it landed:
+        # a foot still on the ground does not slide off its place while the walker lifts it.
+        contact = contact | (~np.isnan(anchors[..., 0]) & (heights < landed + self.height))
         # A joint touching down is anchored where it lands (moved with its foot as the lock has it now).
         landing = contact & np.isnan(anchors[..., 0])
         anchors[landing] = (places + last[:, None])[landing]
+        landed[landing] = heights[landing]
         anchors[~contact] = np.nan
         held = contact.any(axis=1)
         pulls = np.where(contact[..., None], anchors - places, 0.0)
         offset = pulls.sum(axis=1) / np.maximum(contact.sum(axis=1), 1)[:, None]
-        far = held & (np.linalg.norm(offset, axis=-1) > self.max_offset)
-        anchors[far] = np.where(contact[far][..., None], places[far], np.nan)  # put down again
-        offset[far] = 0.0
+        # Held longer than the body's stride allows: the anchor is dragged along at the longest offset
+        # (the foot slides rather than snapping back).
+        length = np.linalg.norm(offset, axis=-1)
+        dragged = length > self.max_offset
+        offset[dragged] *= (self.max_offset / length[dragged])[:, None]
+        anchors[dragged] = np.where(contact[dragged][..., None], (places + offset[:, None])[dragged], np.nan)
         # Lift-off: the last offset fades out; a foot put down again starts from no offset.
         lifted = ~held & (np.abs(last).sum(-1) > 0) & (self.fading[:, side] == 0)
         self.fading[lifted, side] = self.blend + 1
