@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, frame_sampler_options
+from walkdiff.cli.options import SAMPLERS, frame_sampler_options, steering_options
 from walkdiff.common.arguments import count, number
 from walkdiff.common.errors import WalkdiffError
 
@@ -382,20 +382,7 @@ def add_play(bench) -> None:
     b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="per-frame sampler (default ddim)")
     b.add_argument("--steps", type=count(1), default=None, help="its steps (default 10)")
     b.add_argument("--eta", type=number(0, 1), default=None, help="DDIM noise (default 1)")
-    b.add_argument("--transition", type=number(0), default=0.0, help="seconds a style switch is ramped over")
-    b.add_argument(
-        "--turn-rate", type=number(0, above=True), default=720.0,
-        help="degrees per second the control bends towards a new direction (default 720, as walkdiff play)",
-    )  # fmt: skip
-    b.add_argument(
-        "--heading-assist", type=number(0), default=45.0,
-        help="degrees per second the root may be turned beyond the walker's own turn (default 45, as "
-        "walkdiff play; 0: off)",
-    )  # fmt: skip
-    b.add_argument(
-        "--no-foot-lock", dest="foot_lock", action="store_false",
-        help="leave the feet where the walker puts them (default: locked, as walkdiff play)",
-    )  # fmt: skip
+    steering_options(b)
     b.add_argument(
         "--characters", default="1,4,8,16,32", help="characters batched, timed (default 1,4,8,16,32)"
     )

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, keyword_options
+from walkdiff.cli.options import SAMPLERS, keyword_options, steering_options
 from walkdiff.common.arguments import count, number
 
 
@@ -33,23 +33,7 @@ def walker_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
     p.add_argument("--eta", type=number(0, 1), default=None, help="DDIM noise (default 1)")
-    p.add_argument(
-        "--transition", type=number(0), default=0.0,
-        help="seconds a style change is ramped over (default 0: at once)",
-    )  # fmt: skip
-    p.add_argument(
-        "--turn-rate", type=number(0, above=True), default=720.0,
-        help="degrees per second the control's path bends at towards a new direction (default 720)",
-    )  # fmt: skip
-    p.add_argument(
-        "--heading-assist", type=number(0), default=45.0,
-        help="degrees per second the root may be turned beyond the walker's own turn towards the commanded "
-        "direction (default 45; 0: the walker's own turning only)",
-    )  # fmt: skip
-    p.add_argument(
-        "--no-foot-lock", dest="foot_lock", action="store_false",
-        help="leave the feet where the walker puts them (default: a planted foot is held where it landed)",
-    )  # fmt: skip
+    steering_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 

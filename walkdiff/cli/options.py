@@ -37,6 +37,28 @@ def frame_sampler_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
 
 
+def steering_options(p: argparse.ArgumentParser) -> None:
+    """How a steered walker (`WalkController`) answers its commands: the same options and defaults on
+    `play`, `control` and `bench play` (the defaults written here so that parsing imports no torch)."""
+    p.add_argument(
+        "--transition", type=number(0), default=0.0,
+        help="seconds a style change is ramped over (default 0: at once)",
+    )  # fmt: skip
+    p.add_argument(
+        "--turn-rate", type=number(0, above=True), default=720.0,
+        help="degrees per second the control's path bends at towards a new direction (default 720)",
+    )  # fmt: skip
+    p.add_argument(
+        "--heading-assist", type=number(0), default=45.0,
+        help="degrees per second the root may be turned beyond the walker's own turn towards the commanded "
+        "direction (default 45; 0: the walker's own turning only)",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-foot-lock", dest="foot_lock", action="store_false",
+        help="leave the feet where the walker puts them (default: a planted foot is held where it landed)",
+    )  # fmt: skip
+
+
 def keyword_options(args: argparse.Namespace) -> dict:
     """The parsed options as keyword arguments of the function a command runs: all but the command's name."""
     return {key: value for key, value in vars(args).items() if key not in ("command", "what")}
