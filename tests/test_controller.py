@@ -503,13 +503,14 @@ def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_
     IK reaches it exactly), its offset fades out over BLEND frames once it is off the ground, the other
     leg is left alone, and an anchor the body has walked too far from is dragged along."""
     from walkdiff.autoregressive.foot_lock import BLEND, MAX_OFFSET, FootLock
+    from walkdiff.motion.profile_detection import CONTACT_HEIGHT
     from walkdiff.motion.representation import features_to_positions
 
     model = load_walker(ckpt)
     skeleton, spec, layout = model.skeleton, model.profile.contacts, model.layout
     offsets = torch.from_numpy(skeleton.offsets).double()
     heel = skeleton.index(spec.joints[0])
-    leg = spec.height_threshold / 0.0326
+    leg = spec.height_threshold / CONTACT_HEIGHT
     lock = FootLock(model, 1)
     pose = model.normalizer.mean.double().numpy()[None].copy()
     pose[:, layout.contacts] = [1.0, 1.0, 0.0, 0.0]  # the left foot planted, the right in the air

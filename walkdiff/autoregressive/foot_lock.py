@@ -22,6 +22,7 @@ import torch
 
 from walkdiff.motion.footfix import bend_leg
 from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion.profile_detection import CONTACT_HEIGHT
 from walkdiff.motion.representation import yaw_matrix
 from walkdiff.motion.rotations import matrix_to_6d, sixd_to_matrix
 
@@ -39,7 +40,7 @@ class FootLock:
         self.offsets = torch.from_numpy(skeleton.offsets).double()
         joints = [skeleton.index(name) for name in spec.joints]  # left heel, left toe, right heel, right toe
         self.feet = [joints[:2], joints[2:]]
-        self.max_offset = MAX_OFFSET * spec.height_threshold / 0.0326  # contact heights are 0.0326 legs
+        self.max_offset = MAX_OFFSET * spec.height_threshold / CONTACT_HEIGHT  # in the skeleton's units
         self.anchors = np.full((characters, 4, 2), np.nan)  # (x, z) each contact joint is held at
         self.landed = np.full((characters, 4), np.nan)  # the height it landed at
         self.height = spec.height_threshold
