@@ -527,13 +527,11 @@ def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_
         places.append(heel_at(raw, position))
         raws.append(raw)
     np.testing.assert_allclose(places, np.repeat(places[:1], 5, axis=0), atol=1e-6 * leg)
-    right_heel = skeleton.index(spec.joints[2])
-    right_knee = skeleton.parents[right_heel]
-    right = [j for j in range(skeleton.num_joints) if j not in (heel, skeleton.parents[heel],
+    others = [j for j in range(skeleton.num_joints) if j not in (heel, skeleton.parents[heel],
              skeleton.parents[skeleton.parents[heel]])]  # fmt: skip
-    channels = np.concatenate([np.arange(6) + layout.rotations.start + 6 * j for j in right])
+    channels = np.concatenate([np.arange(6) + layout.rotations.start + 6 * j for j in others])
     np.testing.assert_array_equal(raws[-1][:, channels], pose[:, channels])  # only the left leg moved
-    assert right_knee in right and not np.array_equal(raws[-1], pose)
+    assert not np.array_equal(raws[-1], pose)
     np.testing.assert_array_equal(raws[0], pose)  # no offset on landing
     # The contacts off but the foot still on the ground: it stays where it is.
     low = pose.copy()

@@ -13,13 +13,16 @@ the command instead of from a path, every frame, from where the walker is:
 - **Turning**: the points bend from the current heading towards the commanded direction at `turn_rate`
   (default 720 degrees/s), then run straight along it: an arc of radius speed / turn_rate, a tight
   corner that starts straight ahead. The walker turns more slowly than its control bends (Xia's walks
-  turn gently), so the control bends sharply to get a quick turn out of it: at 180 degrees/s its heading
-  was still 49 degrees off a 90 degree command after 1 s, at 720 degrees/s 16. A command further round
+  turn gently), so the control bends sharply to get a quick turn out of it (docs/live-control.md has
+  the figures). A command further round
   than 90 degrees is aimed at as a 90 degree turn, renewed every frame as the walker turns, so the points
   never lie behind the walker (which would ask it to back up, what it has hardly seen). A command
   exactly behind turns left. `turn_rate=math.inf`: no bend.
 - **Stop**: speed 0 puts every point at the root, the control of a walker standing still; it slows to a
   stand and stays there. Without pace the points have no direction: it turns again once it walks.
+- **Heading assist**: each frame's root is turned a little further towards the commanded direction, at
+  most `heading_assist` degrees/s (`assist`); **foot lock**: planted feet held where they landed
+  (`foot_lock.FootLock`). Both change only the frame shown and kept, never what the walker feeds back.
 - **Speed and style** act on the next frame: the pace at once, the style embedding (a name, a mix
   'angry:0.7,old:0.3' or mixing weights) at once or ramped linearly over `transition` seconds. With no
   speed given the walker walks at the style's own mean speed in the training data (mixed as the styles
@@ -54,7 +57,7 @@ TURN_RATE = 720.0  # degrees per second the control's path bends at towards a ne
 MAX_AIM = math.pi / 2  # the control never aims further off the heading than this (no walking backwards)
 HEADING_ASSIST = 45.0  # degrees per second the root may be turned beyond the walker's own turn
 ASSIST_TIME = 0.25  # seconds: the time constant of that correction
-DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 9.8 ms a frame on 2 cores, DDPM's quality (walking.md)
+DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 7.5 ms a frame on 2 cores, lock included (live-control.md)
 
 
 @dataclass(frozen=True)

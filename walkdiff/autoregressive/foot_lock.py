@@ -6,7 +6,7 @@ on the ground is held where it touched down: the first frame of a contact sets i
 and while the contact lasts (and after it, until the joint has risen a contact height above where it
 landed: a foot does not slide off its place as it is lifted) the ankle is moved along the ground by the
 offset that puts the held joints back on their anchors (the mean offset when heel and toe both are), and the leg reaches the
-moved ankle by `footfix.bend_leg`'s two-bone IK (hip and knee; the foot keeps its world orientation).
+moved ankle by `footfix`'s two-bone IK (hip and knee; the foot keeps its world orientation).
 When the foot lifts off, the last offset fades out over `blend` frames so the leg does not snap. Heights
 are left alone. An offset is never longer than `MAX_OFFSET` leg lengths: a contact the model holds
 longer than its stride allows drags the anchor along with the body.
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from walkdiff.motion.footfix import bend_leg
+from walkdiff.motion.footfix import reach
 from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.profile_detection import CONTACT_HEIGHT
 from walkdiff.motion.representation import yaw_matrix
@@ -71,25 +71,17 @@ class FootLock:
         for side, (heel, toe) in enumerate(self.feet):
             feet = world[:, [heel, toe]]
             offset = self._offset(side, feet[..., [0, 2]], feet[..., 1], contacts[:, 2 * side : 2 * side + 2])
-            rows = np.flatnonzero(np.abs(offset).sum(-1) > 0)
-            if len(rows) == 0:
+            moved = np.abs(offset).sum(-1) > 0
+            if not moved.any():
                 continue
-            knee = int(self.parents[heel])
-            hip = int(self.parents[knee])
-            target = world[rows, heel] + np.insert(offset[rows], 1, 0.0, axis=-1)
-            hip_turn, knee_turn = bend_leg(
-                world[rows, hip], world[rows, knee], world[rows, heel], world_rot[rows, hip], target
-            )
-            hip_world, knee_world = hip_turn @ world_rot[rows, hip], knee_turn @ world_rot[rows, knee]
-            parent_world = world_rot[rows, int(self.parents[hip])]
-            local[rows, hip] = np.swapaxes(parent_world, -1, -2) @ hip_world
-            local[rows, knee] = np.swapaxes(hip_world, -1, -2) @ knee_world
-            local[rows, heel] = np.swapaxes(knee_world, -1, -2) @ world_rot[rows, heel]
+            target = world[:, heel] + np.insert(offset, 1, 0.0, axis=-1)
+            bent = reach(local, world, world_rot, self.parents, heel, target, moved)
             # Only the moved joints' channels: the others keep the walker's numbers (writing them again
             # would orthonormalise their 6D rotations, the same pose in other numbers).
-            for joint in (hip, knee, heel):
+            knee = int(self.parents[heel])
+            for joint in (int(self.parents[knee]), knee, heel):
                 start = layout.rotations.start + 6 * joint
-                raw[rows, start : start + 6] = matrix_to_6d(torch.from_numpy(local[rows, joint])).numpy()
+                raw[moved, start : start + 6] = matrix_to_6d(torch.from_numpy(bent[moved, joint])).numpy()
 
     def _offset(self, side: int, places: np.ndarray, heights: np.ndarray, contact: np.ndarray) -> np.ndarray:
         """The ankle offset (N, 2) of one foot this frame from its joints' (x, z) `places` (N, 2, 2),

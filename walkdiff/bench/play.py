@@ -419,11 +419,11 @@ def bench_play(
     transition: float = 0.0,
     characters: tuple[int, ...] = (1, 4, 8, 16, 32),
     timing_frames: int = 30,
-    turn_rate: float = TURN_RATE,
-    heading_assist: float = HEADING_ASSIST,
-    foot_lock: bool = True,
+    **steering,
 ) -> dict:
-    """Every scenario for `seeds` seeds, the measures of the module docstring, written to `out`."""
+    """Every scenario for `seeds` seeds, the measures of the module docstring, written to `out`.
+    `steering`: the controller's turn_rate, heading_assist and foot_lock (its defaults otherwise)."""
+    steering = {"turn_rate": TURN_RATE, "heading_assist": HEADING_ASSIST, "foot_lock": True} | steering
     if hold < 2:
         raise WalkdiffError(
             f"--hold: expected at least 2 seconds (speed is measured 1-2 s after a command), got {hold}"
@@ -439,9 +439,8 @@ def bench_play(
 
     def make(seed: int, n: int = 1, pace: float | None = speed) -> WalkController:
         return controller(
-            model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition, turn_rate=turn_rate,
-            heading_assist=heading_assist, foot_lock=foot_lock,
-        )  # fmt: skip
+            model, styles[0], pace, seed, sampler, steps, eta, n, transition=transition, **steering
+        )
 
     takes = []
     for scenario in scenarios(styles, speed, hold):
@@ -459,8 +458,8 @@ def bench_play(
     result = {
         "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds, "hold_s": hold,
-        "transition_s": transition, "turn_rate_deg_s": turn_rate,
-        "heading_assist_deg_s": heading_assist, "foot_lock": foot_lock, "styles": styles, "speed_m_s": speed,
+        "transition_s": transition, "turn_rate_deg_s": steering["turn_rate"],
+        "heading_assist_deg_s": steering["heading_assist"], "foot_lock": steering["foot_lock"], "styles": styles, "speed_m_s": speed,
         "latency": latency(takes, fps, compute, round(fps)),
         "generation": {
             "one_character_ms": round(compute, 3),

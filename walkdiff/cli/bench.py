@@ -397,8 +397,8 @@ def run_play(args: argparse.Namespace) -> None:
 
     bench_play(
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
-        args.transition, frame_counts(args.characters, "--characters"), args.frames, args.turn_rate,
-        args.heading_assist, args.foot_lock,
+        args.transition, frame_counts(args.characters, "--characters"), args.frames,
+        turn_rate=args.turn_rate, heading_assist=args.heading_assist, foot_lock=args.foot_lock,
     )  # fmt: skip
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import lightning as L
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.models.body_terms import BodyTerms
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, Normalizer
 from walkdiff.motion.skeleton import Motion, Skeleton
@@ -39,6 +40,14 @@ class MotionModule(L.LightningModule):
     def skeleton(self) -> Skeleton | None:
         """The canonical skeleton the model's features are on (None before training starts)."""
         return None if self.profile is None else self.profile.canonical_skeleton
+
+    @property
+    def body_terms(self) -> BodyTerms:
+        """The world-position training terms' forward kinematics and units on the model's skeleton
+        (`BodyTerms`), made once per skeleton profile."""
+        if getattr(self, "_body_terms", None) is None or self._body_terms.profile is not self.profile:
+            self._body_terms = BodyTerms(self.profile, self.spec["fps"])
+        return self._body_terms
 
     def to_file(self, motion: Motion) -> Motion:
         """A canonical clip on the training files' skeleton, axes and root layout, ready to write."""

@@ -33,7 +33,6 @@ from torch import nn
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.models.body_terms import BodyTerms
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.models.pose_mlp import PoseMLP
 from walkdiff.motion.path import Polyline
@@ -211,7 +210,7 @@ class PathWalker(AutoregressiveDiffusion):
 
     def body_losses(self, raw: torch.Tensor, raw_hat: torch.Tensor, weight: torch.Tensor) -> dict:
         """Terms on (real t-1, predicted t, real t+1) for every inner frame t of raw features (B, L, D)."""
-        body = self._body_terms()
+        body = self.body_terms
         around = torch.stack([raw[:, :-2], raw_hat[:, 1:-1], raw[:, 2:]], dim=2)  # (B, L-2, 3, D)
         positions_hat = body.positions(around)
         with torch.no_grad():
@@ -227,11 +226,6 @@ class PathWalker(AutoregressiveDiffusion):
                 weight * body.foot_height_error(positions_hat[:, :, 1], positions[:, :, 1]).pow(2).mean(-1)
             ).mean(),
         }
-
-    def _body_terms(self) -> BodyTerms:
-        if getattr(self, "_body", None) is None or self._body.profile is not self.profile:
-            self._body = BodyTerms(self.profile, self.spec["fps"])
-        return self._body
 
     # ------------------------------------------------------------ generation
 

@@ -61,7 +61,7 @@ from walkdiff.diffusion import (
     step_jumps,
 )
 from walkdiff.models.base import MotionModule
-from walkdiff.models.body_terms import BodyTerms, at_least_float32
+from walkdiff.models.body_terms import at_least_float32
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.models.style_encoder import reference_windows
@@ -196,13 +196,6 @@ class StyledMotionDiffusion(MotionModule):
         return max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height, h.lambda_position) > 0
 
     @property
-    def body(self) -> BodyTerms:
-        """The position terms' forward kinematics and units, on the model's skeleton."""
-        if getattr(self, "_body", None) is None or self._body.profile is not self.profile:
-            self._body = BodyTerms(self.profile, self.spec["fps"])
-        return self._body
-
-    @property
     def contact_spec(self):
         return self.profile.contacts
 
@@ -239,11 +232,11 @@ class StyledMotionDiffusion(MotionModule):
                 weight * (raw_hat[..., contacts] - raw[..., contacts]).pow(2).mean(dim=(1, 2))
             ).mean(),
             "root": (
-                weight * self.body.in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
+                weight * self.body_terms.in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
             ).mean(),
         }
         if self.uses_positions:
-            body = self.body
+            body = self.body_terms
             positions_hat = body.positions(raw_hat)
             with torch.no_grad():
                 positions = body.positions(raw)

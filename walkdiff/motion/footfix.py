@@ -120,12 +120,24 @@ def two_bone_ik(
     """Local rotations (F, J, 3, 3) with the leg ending at `ankle` bent to reach `targets` (F, 3)
     (`bend_leg`). The knee is the ankle's parent and the hip the knee's. Only `frames` (a boolean (F,)
     mask) change; the foot keeps its world orientation."""
-    knee = int(parents[ankle])
-    hip = int(parents[knee])
     world, world_rot = forward_kinematics(
         torch.tensor(rotations), torch.tensor(positions), parents, return_rotations=True
     )
-    world, world_rot = world.double().numpy(), world_rot.double().numpy()
+    return reach(rotations, world.double().numpy(), world_rot.double().numpy(), parents, ankle, targets, frames)
+
+
+def reach(
+    rotations: np.ndarray,
+    world: np.ndarray,
+    world_rot: np.ndarray,
+    parents: np.ndarray,
+    ankle: int,
+    targets: np.ndarray,
+    frames: np.ndarray,
+) -> np.ndarray:
+    """`two_bone_ik` given the pose's world positions (F, J, 3) and rotations (F, J, 3, 3) already."""
+    knee = int(parents[ankle])
+    hip = int(parents[knee])
     hip_turn, knee_turn = bend_leg(
         world[:, hip], world[:, knee], world[:, ankle], world_rot[:, hip], np.asarray(targets, np.float64)
     )
