@@ -218,7 +218,9 @@ def test_velocity_and_foot_losses_see_sliding_feet(tiny_root):
     # Under bf16 autocast (trainer.precision bf16-mixed) the forward kinematics stay float32, exactly.
     with torch.autocast("cpu", dtype=torch.bfloat16):
         under_autocast = model.body_terms.positions(bent)
-    assert under_autocast.dtype == torch.float32 and torch.equal(under_autocast, model.body_terms.positions(bent))
+    assert under_autocast.dtype == torch.float32 and torch.equal(
+        under_autocast, model.body_terms.positions(bent)
+    )
 
 
 def test_the_foot_height_loss_measures_the_feet_in_the_world_in_contact_heights(tiny_root):

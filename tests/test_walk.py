@@ -204,7 +204,9 @@ def test_config_trains_through_the_cli(synthetic_root, tmp_path, monkeypatch):
     # The shipped walker reads whole poses with its MLP (no fused twin) and trains with the body terms.
     assert isinstance(model.eps_net, PoseMLP) and model.hparams.lambda_foot > 0
     path = Polyline.of([[0, 0], [0, 20]])
-    raw, _ = model.generate(path, torch.tensor([0]), torch.tensor([12.0]), 3, torch.Generator().manual_seed(0))
+    raw, _ = model.generate(
+        path, torch.tensor([0]), torch.tensor([12.0]), 3, torch.Generator().manual_seed(0)
+    )
     assert raw.shape == (1, 3, model.spec["feature_dim"]) and np.isfinite(raw).all()
     with pytest.raises(WalkdiffError, match="model.denoiser must be timegrad or mlp"):
         PathWalker(model.spec, denoiser="unet")

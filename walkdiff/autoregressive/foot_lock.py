@@ -5,11 +5,11 @@ no later frames to average over. Here a foot joint (heel or toe) that the walker
 on the ground is held where it touched down: the first frame of a contact sets its anchor on the ground,
 and while the contact lasts (and after it, until the joint has risen a contact height above where it
 landed: a foot does not slide off its place as it is lifted) the ankle is moved along the ground by the
-offset that puts the held joints back on their anchors (the mean offset when heel and toe both are), and the leg reaches the
-moved ankle by `footfix`'s two-bone IK (hip and knee; the foot keeps its world orientation).
-When the foot lifts off, the last offset fades out over `blend` frames so the leg does not snap. Heights
-are left alone. An offset is never longer than `MAX_OFFSET` leg lengths: a contact the model holds
-longer than its stride allows drags the anchor along with the body.
+offset that puts the held joints back on their anchors (the mean offset when heel and toe both are), and
+the leg reaches the moved ankle by `footfix`'s two-bone IK (hip and knee; the foot keeps its world
+orientation). When the foot lifts off, the last offset fades out over `blend` frames so the leg does not
+snap. Heights are left alone. An offset is never longer than `MAX_OFFSET` leg lengths: a contact the model
+holds longer than its stride allows drags the anchor along with the body.
 
 Only the rotation channels of the hips, knees and ankles of the frames it moves change; what the walker
 feeds back to itself is its own frame, so the lock never changes the motion it goes on to make.

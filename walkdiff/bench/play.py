@@ -459,7 +459,8 @@ def bench_play(
         "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds, "hold_s": hold,
         "transition_s": transition, "turn_rate_deg_s": steering["turn_rate"],
-        "heading_assist_deg_s": steering["heading_assist"], "foot_lock": steering["foot_lock"], "styles": styles, "speed_m_s": speed,
+        "heading_assist_deg_s": steering["heading_assist"], "foot_lock": steering["foot_lock"],
+        "styles": styles, "speed_m_s": speed,
         "latency": latency(takes, fps, compute, round(fps)),
         "generation": {
             "one_character_ms": round(compute, 3),

@@ -15,6 +15,7 @@ Writes OUT/protocol.json and OUT/protocol.md (the README's table).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -60,10 +61,12 @@ def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, 
 
 def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.Tensor], strength: float,
                keep: bool, seed: int, to: dict[str, torch.Tensor] | None = None,
-               sampling=None) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
+               sampling=None, match: dict | None = None,
+               ) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
     """Every source restyled to every other style: (outputs, their sources, target styles). `to` (target
     style -> the model's style input, an id or a code) restyles to those styles instead; `sampling`
-    (default DDPM) is how."""
+    (default DDPM) is how; `match` (target style -> StyleStatistics): the statistics each is moved to."""
+    from walkdiff.models.style_statistics import StyleStatistics
     from walkdiff.styled.generation import Sampling, restyle
 
     styles = list(model.spec["styles"])
@@ -77,7 +80,10 @@ def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.
         target = torch.stack([to[s] for s in names])
         x0 = model.normalizer.normalize(raw)[None].expand(len(names), -1, -1)
         content = torch.full((len(names),), contents.index(source.content))
-        x = restyle(model, x0, target, content, strength, sampling or Sampling(), generator, keep)
+        how = sampling or Sampling()
+        if match is not None:
+            how = replace(how, match=StyleStatistics.stack([match[s] for s in names]))
+        x = restyle(model, x0, target, content, strength, how, generator, keep)
         restyled = torch.from_numpy(model.to_raw(x, True))
         outputs += _clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
         paired += [source] * len(target)

@@ -41,13 +41,15 @@ from walkdiff.evaluation.scorer import WindowSet, window_set
 from walkdiff.evaluation.transfer import real_targets, transfer_baselines, transfer_row
 from walkdiff.metrics.bootstrap import Reference, interval, resample_weights
 from walkdiff.metrics.protocol import PROPORTION
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.styled.generation import Sampling
 from walkdiff.styled.pipeline import StyledGenerator
-from walkdiff.styled.style_examples import mixed_code
+from walkdiff.styled.style_examples import MATCH_CLIPS, mixed_code
 
 SAMPLE_METRICS = ("style_acc", "content_acc", "fmd", "kid", "skate_ratio")
 STRENGTH = 0.6  # of the unseen-style transfers
 EXAMPLES = "from example clips"
+CODE_ALONE = "from example clips, code alone (--match-clips 0)"
 LABEL = "by label"
 CEILING = "label-only model, by label (ceiling)"
 NEAREST = "baseline: nearest training style"
@@ -56,11 +58,12 @@ FLOOR = "real train (floor)"
 
 @dataclass
 class Example:
-    """A real test clip as a style example: its name, style and code."""
+    """A real test clip as a style example: its name, style, code and pose statistics."""
 
     name: str
     style: str
     code: torch.Tensor
+    statistics: StyleStatistics
 
 
 @dataclass
@@ -73,6 +76,12 @@ class Run:
     seed: int
     bootstrap: int
     batch_size: int
+    match_clips: float
+
+    def matched(self, examples: list[Example]) -> StyleStatistics:
+        """Each example's statistics, once per window sampled from it, matched at `match_clips`."""
+        each = [replace(e.statistics, strength=torch.tensor(self.match_clips)) for e in examples]
+        return StyleStatistics.stack([s for s in each for _ in range(self.per_example)])
 
 
 def bench_style(
@@ -88,12 +97,15 @@ def bench_style(
     bootstrap: int = 200,
     batch_size: int = 64,
     timeline_clips: int = 16,
+    match_clips: float = MATCH_CLIPS,
 ) -> dict:
     from walkdiff.styled.generation import load_generator
 
     started = time.perf_counter()
     out = output_folder(out)
-    run = Run(ClipScorer(evaluator), per_example, Sampling(sampler, steps), seed, bootstrap, batch_size)
+    run = Run(
+        ClipScorer(evaluator), per_example, Sampling(sampler, steps), seed, bootstrap, batch_size, match_clips
+    )
     labels = None if labels_ckpt is None else load_generator(labels_ckpt)
     print("seen styles from example clips", flush=True)
     generator = StyledGenerator.load(ckpt)
@@ -121,6 +133,7 @@ def bench_style(
         "evaluator": str(evaluator),
         "contents": list(run.scorer.data.selection.names),
         "per_example": per_example,
+        "match_clips": match_clips,
         "sampler": sampler,
         "steps": None if sampler == "ddpm" else steps or DEFAULT_STEPS,
         "bootstrap": bootstrap,
@@ -146,8 +159,13 @@ def _seen(run: Run, generator: StyledGenerator, labels) -> tuple[dict, dict | No
     targets = [e.style for e in examples for _ in range(run.per_example)]
     codes = torch.stack([e.code for e in examples]).repeat_interleave(run.per_example, 0)
     rows, per_style = {}, {}
-    for name, inputs in ((EXAMPLES, codes), (LABEL, _ids(model, targets, "--ckpt"))):
-        rows[name], per_style[name] = _sample_row(run, model, inputs, targets, run.scorer, name)
+    settings = {
+        EXAMPLES: (codes, run.matched(examples)),
+        CODE_ALONE: (codes, None),
+        LABEL: (_ids(model, targets, "--ckpt"), None),
+    }
+    for name, (inputs, match) in settings.items():
+        rows[name], per_style[name] = _sample_row(run, model, inputs, targets, run.scorer, name, match)
     example, label = rows[EXAMPLES], rows[LABEL]
     seen = {
         "styles": styles,
@@ -213,7 +231,11 @@ def _unseen(run: Run, path: str | Path, labels) -> dict:
 
     sampling = _unseen_sampling(run, model, labels, examples, against, nearest)
     means = {s: mixed_code([(e.code, 1.0) for e in examples if e.style == s]) for s in left}
-    transfer = _unseen_transfer(run, model, labels, means, against, nearest, training)
+    matches = {
+        s: StyleStatistics.mixed([(e.statistics, 1.0) for e in examples if e.style == s], run.match_clips)
+        for s in left
+    }
+    transfer = _unseen_transfer(run, model, labels, means, matches, against, nearest, training)
     row = sampling["rows"][EXAMPLES]
     floor = sampling["rows"][FLOOR]["fmd"]["value"]
     return {
@@ -258,14 +280,14 @@ def _unseen_sampling(run: Run, model, labels, examples: list[Example], against: 
     targets = [e.style for e in examples for _ in range(run.per_example)]
     near = [nearest(e.code) for e in examples]
     codes = torch.stack([e.code for e in examples]).repeat_interleave(run.per_example, 0)
-    settings = {EXAMPLES: (model, codes)}
+    settings = {EXAMPLES: (model, codes, run.matched(examples)), CODE_ALONE: (model, codes, None)}
     if labels is not None:
-        settings[CEILING] = (labels, _ids(labels, targets, "--labels-ckpt"))
+        settings[CEILING] = (labels, _ids(labels, targets, "--labels-ckpt"), None)
     nearest_ids = _ids(model, [n for n in near for _ in range(run.per_example)], "--unseen-ckpt")
-    settings[NEAREST] = (model, nearest_ids)
+    settings[NEAREST] = (model, nearest_ids, None)
     rows, per_style = {}, {}
-    for name, (maker, inputs) in settings.items():
-        rows[name], per_style[name] = _sample_row(run, maker, inputs, targets, against, name)
+    for name, (maker, inputs, match) in settings.items():
+        rows[name], per_style[name] = _sample_row(run, maker, inputs, targets, against, name, match)
     rows[FLOOR], per_style[FLOOR] = _floor(run, against, sorted(set(targets)))
     return {
         "windows": len(targets),
@@ -275,10 +297,11 @@ def _unseen_sampling(run: Run, model, labels, examples: list[Example], against: 
     }
 
 
-def _unseen_transfer(run: Run, model, labels, means: dict[str, torch.Tensor], against: ClipScorer, nearest,
+def _unseen_transfer(run: Run, model, labels, means: dict[str, torch.Tensor],
+                     matches: dict[str, StyleStatistics], against: ClipScorer, nearest,
                      training: list[str]) -> dict:  # fmt: skip
-    """The real test clips of the training styles restyled to each left-out style, beside the ceiling and
-    the baselines."""
+    """The real test clips of the training styles restyled to each left-out style (the mean code and
+    statistics of its examples), beside the code alone, the ceiling and the baselines."""
     scorer = run.scorer
     test = [
         (info, features)
@@ -297,17 +320,17 @@ def _unseen_transfer(run: Run, model, labels, means: dict[str, torch.Tensor], ag
     ]  # fmt: skip
     raws = [torch.from_numpy(f) for _, f in test]
     near = {style: nearest(code) for style, code in means.items()}
-    settings = {f"{EXAMPLES} (mean code)": (model, means)}
+    settings = {f"{EXAMPLES} (mean code)": (model, means, matches), CODE_ALONE: (model, means, None)}
     if labels is not None:
         ids = _ids(labels, list(means), "--labels-ckpt")
-        settings[CEILING] = (labels, dict(zip(means, ids, strict=True)))
+        settings[CEILING] = (labels, dict(zip(means, ids, strict=True)), None)
     ids = _ids(model, list(near.values()), "--unseen-ckpt")
-    settings[NEAREST] = (model, dict(zip(means, ids, strict=True)))
+    settings[NEAREST] = (model, dict(zip(means, ids, strict=True)), None)
     rows, paired, targets = {}, [], []
-    for name, (maker, to) in settings.items():
+    for name, (maker, to, match) in settings.items():
         to = {style: value.to(maker.device) for style, value in to.items()}
         outputs, paired, targets = _transfers(
-            against, maker, sources, raws, STRENGTH, False, run.seed, to, run.sampling
+            against, maker, sources, raws, STRENGTH, False, run.seed, to, run.sampling, match
         )
         rows[name] = transfer_row(against, outputs, paired, run.bootstrap, run.seed)
     real = real_targets(against, targets, paired)
@@ -365,14 +388,16 @@ def _examples(run: Run, generator: StyledGenerator, styles: list[str]) -> list[E
         )
     out = []
     for info, name in progress(chosen, desc="example codes", unit="clip"):
-        ((code, _),), _ = generator.examples([info.path])
-        out.append(Example(name, scorer.styles[info.style], code.cpu()))
+        ((code, _),), ((statistics, _),), _ = generator.examples([info.path])
+        out.append(Example(name, scorer.styles[info.style], code.cpu(), statistics))
     return out
 
 
-def _sample_row(run: Run, model, inputs: torch.Tensor, targets: list[str], scorer: ClipScorer, name: str):
+def _sample_row(run: Run, model, inputs: torch.Tensor, targets: list[str], scorer: ClipScorer, name: str,
+                match: StyleStatistics | None = None):  # fmt: skip
     """(metrics, per-style accuracy) of one window per style input (ids or codes), labelled with
-    `targets`; contents cycle over the protocol's."""
+    `targets`, moved to `match`'s statistics (one row per window) if given; contents cycle over the
+    protocol's."""
     contents = list(model.spec["contents"])
     ids = [contents.index(n) for n in run.scorer.data.selection.names]
     content = torch.tensor(ids)[torch.arange(len(targets)) % len(ids)]
@@ -384,6 +409,7 @@ def _sample_row(run: Run, model, inputs: torch.Tensor, targets: list[str], score
             x = model.generate(
                 inputs[i : i + size].to(model.device), content[i : i + size].to(model.device),
                 sampler=run.sampling.sampler, steps=run.sampling.steps, generator=generator, progress=hook,
+                match=None if match is None else match.rows(i, i + size),
             )  # fmt: skip
             raws.append(torch.from_numpy(model.to_raw(x, True)))
     clips = _clips_of_raw(scorer, torch.cat(raws), targets, None, "sample")

@@ -328,6 +328,13 @@ def add_style(bench) -> None:
     b.add_argument(
         "--timeline-clips", type=count(1), default=16, help="clips of three styles for the transitions (16)"
     )
+    b.add_argument(
+        "--match-clips",
+        type=number(0, 1),
+        default=1.0,
+        metavar="W",
+        help="how far samples from example clips match the clips' pose statistics (default 1, as sample)",
+    )
     b.set_defaults(run=run_style)
 
 
@@ -337,6 +344,7 @@ def run_style(args: argparse.Namespace) -> None:
     result = bench_style(
         args.out, args.ckpt, args.evaluator, args.unseen_ckpt, args.labels_ckpt, args.per_example,
         args.sampler, args.steps, args.seed, args.bootstrap, timeline_clips=args.timeline_clips,
+        match_clips=args.match_clips,
     )  # fmt: skip
     print(format_style(result))
     print(f"wrote {args.out}/style.json and style.md")

@@ -53,6 +53,11 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
         help="take the style from example BVH clips on the model's skeleton (a model with a style encoder), "
         "alone or mixed with --style (which then weighs 1)",
     )  # fmt: skip
+    p.add_argument(
+        "--match-clips", type=number(0, 1), default=1.0, metavar="W",
+        help="how far the sample's pose statistics are moved to the example clips' (default 1: all the way; "
+        "0: their style code alone), times the clips' share of the weight",
+    )  # fmt: skip
     p.add_argument("--content", default="walk", help="content group (default walk)")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)

@@ -386,7 +386,9 @@ class AutoregressiveDiffusion(MotionModule):
         steps = (sampler or SamplerChoice()).table(self.diffusion)
         embeddings = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
         fused = fused and isinstance(self.eps_net, EpsNetwork)  # only TimeGrad's network has a fused twin
-        return FrameTables(steps, embeddings, FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None)
+        return FrameTables(
+            steps, embeddings, FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
+        )
 
     def sample_frame(
         self, h: torch.Tensor, tables: FrameTables, generator: torch.Generator | None

@@ -28,7 +28,9 @@ class PoseMLP(nn.Module):
         self.cond = nn.Linear(cond_dim, hidden)
         self.input = nn.Linear(dim, hidden)
         self.blocks = nn.ModuleList(
-            nn.Sequential(nn.LayerNorm(hidden), nn.Linear(hidden, hidden), nn.SiLU(), nn.Linear(hidden, hidden))
+            nn.Sequential(
+                nn.LayerNorm(hidden), nn.Linear(hidden, hidden), nn.SiLU(), nn.Linear(hidden, hidden)
+            )
             for _ in range(layers)
         )
         self.norm = nn.LayerNorm(hidden)

@@ -65,6 +65,7 @@ from walkdiff.models.body_terms import at_least_float32
 from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.models.style_encoder import reference_windows
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.footfix import ground, planted_heights
 from walkdiff.motion.representation import decode_root
 from walkdiff.spec import DataSpec
@@ -232,7 +233,8 @@ class StyledMotionDiffusion(MotionModule):
                 weight * (raw_hat[..., contacts] - raw[..., contacts]).pow(2).mean(dim=(1, 2))
             ).mean(),
             "root": (
-                weight * self.body_terms.in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
+                weight
+                * self.body_terms.in_heights(decode_root(raw_hat) - decode_root(raw)).pow(2).mean(dim=(1, 2))
             ).mean(),
         }
         if self.uses_positions:
@@ -422,23 +424,25 @@ class StyledMotionDiffusion(MotionModule):
         generator: torch.Generator | None = None,
         inpaint: tuple[torch.Tensor, torch.Tensor] | None = None,
         progress: Progress = False,
+        match: StyleStatistics | None = None,
     ) -> torch.Tensor:
         """Normalised feature windows (B, frames, D) from the EMA denoiser.
 
-        `style` holds ids (B,) or mixing weights (B, styles); `guidance` W = 1 is plain conditional
-        sampling, W > 1 pushes towards the requested labels (classifier-free guidance).
+        `style` holds ids (B,) or mixing weights (B, styles) or codes; `guidance` W = 1 is plain
+        conditional sampling, W > 1 pushes towards the requested labels (classifier-free guidance);
+        `match`: example clips' statistics the windows are moved to (models/style_statistics.py).
         """
         frames = frames or self.spec["window"]
         shape = (style.shape[0], frames, self.spec["feature_dim"])
         jumps = self.jumps(sampler, steps, eta)
-        model_fn = self.model_fn(style, content, guidance, jumps)
+        model_fn = self.model_fn(style, content, guidance, jumps, match)
         common = dict(generator=generator, progress=progress, inpaint=inpaint)
         if sampler == "ddpm":
             return ddpm_sample(model_fn, self.diffusion, shape, **common)
         if sampler == "ddim":
             x = ddim_sample(model_fn, self.diffusion, shape, steps or DEFAULT_STEPS, eta, **common)
             if jumps is not None and inpaint is not None:
-                x = self.harmonised(x, style, content, guidance, inpaint, generator)
+                x = self.harmonised(x, style, content, guidance, inpaint, generator, match)
             return x
         if sampler == "dpmpp":
             return dpm_solver_sample(model_fn, self.diffusion, shape, steps or DEFAULT_STEPS, **common)
@@ -452,6 +456,7 @@ class StyledMotionDiffusion(MotionModule):
         guidance: float,
         inpaint: tuple[torch.Tensor, torch.Tensor],
         generator: torch.Generator | None = None,
+        match: StyleStatistics | None = None,
     ) -> torch.Tensor:
         """A student's window made around held frames, noised again to the middle of the schedule and
         denoised in one step with the frames held. In 1 or 2 steps the network sees the held frames only
@@ -459,7 +464,7 @@ class StyledMotionDiffusion(MotionModule):
         this pass shows it the held frames and its own at once, at the level of the 2-step schedule's last
         step, which the student was distilled for (the teacher's network when it was not)."""
         level = respace(self.diffusion.num_timesteps, 2)[-1]
-        model_fn = self.model_fn(style, content, guidance, self.jumps("ddim", 2, 0.0))
+        model_fn = self.model_fn(style, content, guidance, self.jumps("ddim", 2, 0.0), match)
         t = torch.full((x.shape[0],), level, device=x.device)
         x_t = self.diffusion.q_sample(x, t, randn_like(x, generator))
         table = step_coefficients(self.diffusion, [level], 0.0)
@@ -487,10 +492,15 @@ class StyledMotionDiffusion(MotionModule):
         content: torch.Tensor,
         guidance: float = 1.0,
         jumps: torch.Tensor | None = None,
+        match: StyleStatistics | None = None,
     ):
-        """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance.
-        `jumps` (T,): the jump each trained step takes (`jumps`), for a distilled student's DDIM; without
-        them a student's teacher samples."""
+        """The EMA denoiser as the samplers call it, (x_t, t) -> output, with classifier-free guidance,
+        its clean estimate moved to `match`'s statistics when given. `jumps` (T,): the jump each trained
+        step takes (`jumps`), for a distilled student's DDIM; without them a student's teacher samples."""
+        model_fn = self._guided_fn(style, content, guidance, jumps)
+        return model_fn if match is None else match.guide(model_fn, self.diffusion)
+
+    def _guided_fn(self, style, content, guidance: float, jumps: torch.Tensor | None):
         ema = (self.ema.module if jumps is not None or self.teacher is None else self.teacher).eval()
 
         def net(x, t, s, c):

@@ -123,7 +123,9 @@ def two_bone_ik(
     world, world_rot = forward_kinematics(
         torch.tensor(rotations), torch.tensor(positions), parents, return_rotations=True
     )
-    return reach(rotations, world.double().numpy(), world_rot.double().numpy(), parents, ankle, targets, frames)
+    return reach(
+        rotations, world.double().numpy(), world_rot.double().numpy(), parents, ankle, targets, frames
+    )
 
 
 def reach(

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +25,7 @@ from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 from walkdiff.styled.generation import Sampling, noised_steps
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
+from walkdiff.styled.style_examples import MATCH_CLIPS
 
 
 def _write_clip(
@@ -75,6 +75,7 @@ def sample(
     to_map: str | None = None,
     style_clips: str | None = None,
     transition: float = DEFAULT_TRANSITION,
+    match_clips: float = MATCH_CLIPS,
 ) -> dict:
     """`walkdiff sample`: `num` clips as BVH (+ GIF previews of their first `preview_seconds`) and
     `manifest.json` in `out`; returns the manifest. `to`: a rig to play them on (`TargetRig`)."""
@@ -84,7 +85,9 @@ def sample(
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     model = generator.model
-    request = generator.request(style, content, sampling, overlap, blend, style_clips, transition)
+    request = generator.request(
+        style, content, sampling, overlap, blend, style_clips, transition, match_clips
+    )
     out = output_folder(out)
     names = [f"{request.label}_{content}_{i:03d}" for i in range(num)]
     manifest_path = out / "manifest.json"
@@ -108,12 +111,13 @@ def sample(
             "settings": {
                 "style": style,
                 "style_clips": [e.record() for e in request.examples],
+                "match_clips": match_clips if request.examples else None,
                 "timeline": None if request.timeline is None else request.timeline.record(),
                 "content": content,
                 "num": num,
                 "frames": frames,
                 "fps": model.spec["fps"],
-                **asdict(sampling),
+                **request.sampling.record(),
                 "overlap": request.overlap,
                 "blend": request.blend,
                 "ground": ground,
@@ -158,6 +162,7 @@ def transfer(
     to: str | None = None,
     to_map: str | None = None,
     style_clips: str | None = None,
+    match_clips: float = MATCH_CLIPS,
 ) -> dict:
     """`walkdiff transfer`: `out/<input>_to_<style>.bvh`, a GIF beside the source (of their first
     `preview_seconds`) and a JSON report. `to`: a rig to play the result on (the preview shows the
@@ -167,7 +172,9 @@ def transfer(
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     model = generator.model
-    request = generator.request(style, content, sampling, overlap, blend, style_clips)
+    request = generator.request(
+        style, content, sampling, overlap, blend, style_clips, match_clips=match_clips
+    )
     noised_steps(model, strength, sampling)  # bad strength fails before any work
     input = Path(input)
     motion = generator.source(input)
@@ -193,12 +200,13 @@ def transfer(
             "settings": {
                 "style": style,
                 "style_clips": [e.record() for e in request.examples],
+                "match_clips": match_clips if request.examples else None,
                 "content": content,
                 "strength": strength,
                 "keep_trajectory": keep_trajectory,
                 "frames": motion.num_frames,
                 "fps": model.spec["fps"],
-                **asdict(sampling),
+                **request.sampling.record(),
                 "overlap": request.overlap,
                 "blend": request.blend,
                 "ground": ground,

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -25,6 +25,7 @@ import torch
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice, log_snr_timesteps, respace, run_steps, step_coefficients
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.representation import FeatureLayout, features_to_positions
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
@@ -43,6 +44,8 @@ class Sampling:
     steps: int | None = None  # DDIM / DPM-Solver++ steps (default 10); unused by DDPM
     eta: float = 0.0  # DDIM noise (0: deterministic)
     guidance: float = 1.0  # classifier-free guidance weight; 1 is none
+    # example clips' statistics each window is moved to (--style-clip, models/style_statistics.py)
+    match: StyleStatistics | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         SamplerChoice(self.sampler, self.steps, self.eta)  # its checks and messages: sampler, steps, eta
@@ -51,6 +54,10 @@ class Sampling:
                 f"--guidance must be a number in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful), "
                 f"got {self.guidance:g}"
             )
+
+    def record(self) -> dict:
+        """What a manifest says of the sampler (the matched statistics are recorded with their clips)."""
+        return {"sampler": self.sampler, "steps": self.steps, "eta": self.eta, "guidance": self.guidance}
 
     @property
     def order(self) -> int:
@@ -202,6 +209,7 @@ def generate_long(
             generator=generator,
             inpaint=inpaint,
             progress=hook,
+            match=sampling.match,
         )
 
     with bar:
@@ -239,7 +247,7 @@ def restyle(
     diffusion = model.diffusion
     t0, timesteps, eta = noised_steps(model, strength, sampling)
     table = step_coefficients(diffusion, timesteps, eta, sampling.order)
-    model_fn = model.model_fn(style, content, sampling.guidance)
+    model_fn = model.model_fn(style, content, sampling.guidance, match=sampling.match)
     layout = FeatureLayout.from_dim(source.shape[-1])
     window = model.spec["window"]
     overlap, blend = resolve_windows(window, overlap, blend)

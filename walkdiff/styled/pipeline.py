@@ -7,9 +7,10 @@ seed and settings. The windows, samplers and transfer themselves are in styled/g
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.models.pipeline import Pipeline
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_style, parse_timeline
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.footfix import fix_feet as pinned_feet
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
@@ -35,6 +37,7 @@ from walkdiff.styled.generation import (
     restyle,
 )
 from walkdiff.styled.style_examples import (
+    MATCH_CLIPS,
     StyleExample,
     example_windows,
     label_code,
@@ -130,15 +133,17 @@ class StyledGenerator(Pipeline):
         to: TargetRig | str | os.PathLike | None = None,
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
+        match_clips: float = MATCH_CLIPS,
     ) -> list[Take]:
         """`num` clips of `frames` frames in `style` (a name, or a mix such as 'angry:0.7,old:0.3'), drawn
         together as `walkdiff sample` draws them: the same seed and settings give the same clips. `to`: a
         rig to play them on (`Take.retarget`). `style_clips`: example clips whose style to take, alone or
         mixed with `style` ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip, weight) pairs). A
-        timeline `style` ('neutral@0,old@4s') changes style over time, ramped over `transition` seconds."""
+        timeline `style` ('neutral@0,old@4s') changes style over time, ramped over `transition` seconds.
+        `match_clips`: how far the clips' pose statistics are matched too (0: their code alone)."""
         check_sample_size(num, frames)
         sampling = Sampling(sampler, steps, eta, guidance)
-        request = self.request(style, content, sampling, overlap, blend, style_clips, transition)
+        request = self.request(style, content, sampling, overlap, blend, style_clips, transition, match_clips)
         rig = TargetRig.of(to)  # a wrong rig is said before any sampling
         clips = self.generate(request, num, frames, seed, ground, fix_feet)
         return [self.take(clip, rig) for clip in clips]
@@ -161,13 +166,14 @@ class StyledGenerator(Pipeline):
         fix_feet: bool = False,
         to: TargetRig | str | os.PathLike | None = None,
         style_clips=None,
+        match_clips: float = MATCH_CLIPS,
     ) -> Take:
         """A clip (a Motion, a Take or a BVH file, on the training files' skeleton, any frame rate)
         restyled as `walkdiff transfer` does: noised to `strength` of the schedule and denoised in
         `style`; `keep_trajectory` keeps its root path exactly; `to`: a rig to play it on."""
         rig = TargetRig.of(to)
         sampling = Sampling(sampler, steps, eta, guidance)
-        request = self.request(style, content, sampling, overlap, blend, style_clips)
+        request = self.request(style, content, sampling, overlap, blend, style_clips, match_clips=match_clips)
         if request.timeline is not None:
             raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is for sample; transfer takes one style")
         noised_steps(self.model, strength, request.sampling)  # a bad strength fails before any warning
@@ -187,8 +193,15 @@ class StyledGenerator(Pipeline):
         blend: int | None,
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
+        match_clips: float = MATCH_CLIPS,
     ) -> Request:
-        """The labels and windows of a sample or transfer, or a WalkdiffError naming what is wrong."""
+        """The labels and windows of a sample or transfer, or a WalkdiffError naming what is wrong. Example
+        clips give their code, and their statistics matched at `match_clips` times their share of the
+        weight (a --style label weighs 1)."""
+        if not (math.isfinite(match_clips) and 0 <= match_clips <= 1):
+            raise WalkdiffError(
+                f"--match-clips must be in [0, 1] (0: the clips' code alone), got {match_clips:g}"
+            )
         if style is None and not style_clips:
             raise WalkdiffError("no style given: pass --style NAME[,...], --style-clip FILE[,...] or both")
         content_id = self.model.label_ids([content], "content")[0]
@@ -210,23 +223,29 @@ class StyledGenerator(Pipeline):
             self.check_trained(style_label)
         if style_clips:
             self.model.style_code(None)  # a model without a style encoder says so before any clip is read
-            weighted, examples = self.examples(style_clips)
+            weighted, statistics, examples = self.examples(style_clips)
+            clips_weight = sum(w for _, w in weighted)
             if style is not None:
                 weighted.insert(0, (label_code(self.model, style_label), 1.0))
             style_label = mixed_code(weighted)
+            if match_clips > 0:
+                share = clips_weight / sum(w for _, w in weighted)
+                sampling = replace(sampling, match=StyleStatistics.mixed(statistics, match_clips * share))
             names = [e.source for e in examples]
             label = "+".join(([label] if style is not None else []) + [f"clip-{Path(n).stem}" for n in names])
         return Request(style_label, label, content_id, sampling, overlap, blend, examples)
 
-    def examples(self, style_clips) -> tuple[list[tuple[torch.Tensor, float]], tuple[StyleExample, ...]]:
-        """Each example clip's code and weight, and what the manifest records of it."""
-        weighted, examples = [], []
+    def examples(self, style_clips) -> tuple[list, list, tuple[StyleExample, ...]]:
+        """Each example clip's (code, weight) and (statistics, weight), and what the manifest records."""
+        weighted, statistics, examples = [], [], []
         for clip, weight in parse_style_clips(style_clips):
             where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
-            code = self.model.style_code(example_windows(self.model, self.source(clip), where))
+            windows = example_windows(self.model, self.source(clip), where)
+            code = self.model.style_code(windows)
             weighted.append((code, weight))
+            statistics.append((StyleStatistics.of(windows), weight))
             examples.append(StyleExample(where, weight, tuple(code.tolist())))
-        return weighted, tuple(examples)
+        return weighted, statistics, tuple(examples)
 
     def check_trained(self, style: torch.Tensor) -> None:
         """A style with no stored code (left out of training, data.leave_out_styles) is refused by name."""

@@ -4,7 +4,9 @@ A model trained with a style encoder (`model.style_code_dim > 0`, models/style_e
 clip into a unit code: the clip is read as `transfer` reads its input (the model's skeleton, any frame
 rate), cut into windows half a window apart, and the direction of the mean of their codes is its code.
 A request's style is then the direction of the weighted sum of the labels' stored codes (the `--style`
-part counts as weight 1) and the clips' codes (weight 1 each unless given).
+part counts as weight 1) and the clips' codes (weight 1 each unless given). The clips' windows also give
+their pose statistics, which sampling matches (`--match-clips`, models/style_statistics.py) in proportion
+to the clips' share of the weight.
 """
 
 from __future__ import annotations
@@ -20,6 +22,10 @@ import torch.nn.functional as F
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.representation import encode
 from walkdiff.motion.skeleton import Motion
+
+# How far a sample's pose statistics are moved to its example clips' (models/style_statistics.py): all the
+# way, because a code alone gives a style never seen in training as the nearest seen one (bench style).
+MATCH_CLIPS = 1.0
 
 
 @dataclass(frozen=True)

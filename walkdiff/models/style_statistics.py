@@ -1,0 +1,100 @@
+"""Style from an example clip that no code describes: matching the sample's pose statistics to the clip's.
+
+A style code places an example among the styles the encoder was trained on, so a style never seen in
+training lands on the nearest seen one (measured: `walkdiff bench style`, unseen styles). What an
+example clip does carry, seen or not, is the statistics of its features: the mean of each channel is its
+posture (a raised chest, a bent back) and speed, the spread of each channel over a window is how far and
+how fast its joints swing. Holden et al. (2016) restyled motion by matching such second-order statistics
+of an example, and AdaIN (Huang and Belongie 2017; Aberman et al. 2020 for motion) by moving the mean and
+spread of each channel to the example's; here the same move is made on the denoiser's clean estimate at
+every sampling step, so the network keeps making a whole, consistent body around it.
+
+The channels matched are the pose and the root's speed and height (`FeatureLayout`); the turning rate is
+the path's and the contact flags are the feet's timing, so neither is touched. Statistics are of
+normalised features, taken per window of the model and averaged over the example's windows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from walkdiff.diffusion.gaussian import GaussianDiffusion, extract
+from walkdiff.motion.representation import FeatureLayout
+
+MAX_SCALE = 3.0  # a channel's spread is scaled by at most this (or 1/this): a still channel is not blown up
+
+
+def matched_channels(dim: int) -> torch.Tensor:
+    """(D,) 1 on the channels whose statistics carry style: root speed and height, and the pose."""
+    layout = FeatureLayout.from_dim(dim)
+    mask = torch.zeros(dim)
+    for block in (layout.root_vel, layout.root_height, layout.rotations):
+        mask[block] = 1.0
+    return mask
+
+
+@dataclass(frozen=True)
+class StyleStatistics:
+    """Per-channel mean and spread (D,) of normalised feature windows, or (B, D) one per sample of a batch,
+    and how strongly to match them (a weight, () or (B,), in [0, 1]; 1 moves the sample's statistics all
+    the way)."""
+
+    mean: torch.Tensor
+    spread: torch.Tensor
+    strength: torch.Tensor
+
+    @classmethod
+    def of(cls, windows: torch.Tensor) -> StyleStatistics:
+        """The statistics of windows (N, F, D): the mean over every frame, the root mean square of each
+        window's spread over its frames."""
+        mean = windows.mean(dim=(0, 1))
+        spread = windows.var(dim=1, correction=0).mean(dim=0).sqrt()
+        return cls(mean, spread, torch.ones(()))
+
+    @classmethod
+    def mixed(cls, weighted: list[tuple[StyleStatistics, float]], strength: float) -> StyleStatistics:
+        """The weighted mean of several examples' statistics (variances averaged), matched at `strength`."""
+        total = sum(w for _, w in weighted)
+        mean = sum(w * s.mean for s, w in weighted) / total
+        spread = (sum(w * s.spread.square() for s, w in weighted) / total).sqrt()
+        return cls(mean, spread, torch.tensor(float(strength)))
+
+    @classmethod
+    def stack(cls, each: list[StyleStatistics]) -> StyleStatistics:
+        """One statistics per sample of a batch, in order."""
+        return cls(
+            *(torch.stack([getattr(s, name) for s in each]) for name in ("mean", "spread", "strength"))
+        )
+
+    def rows(self, start: int, stop: int) -> StyleStatistics:
+        """The statistics of samples [start, stop) of a batch's."""
+        return StyleStatistics(self.mean[start:stop], self.spread[start:stop], self.strength[start:stop])
+
+    def shift(self, x0: torch.Tensor) -> torch.Tensor:
+        """How far (B, F, D) to move clean windows x0 (B, F, D) so each channel's mean and spread over the
+        window meet these, on the matched channels, times the strength."""
+        mask = matched_channels(x0.shape[-1]).to(x0)
+        mean, spread = x0.mean(dim=1, keepdim=True), x0.std(dim=1, keepdim=True, correction=0)
+        scale = (self.spread.to(x0)[..., None, :] / spread.clamp_min(1e-6)).clamp(1 / MAX_SCALE, MAX_SCALE)
+        moved = (x0 - mean) * scale + self.mean.to(x0)[..., None, :]
+        strength = self.strength.to(x0).reshape(*self.strength.shape, 1, 1)
+        return strength * mask * (moved - x0)
+
+    def guide(self, model_fn, diffusion: GaussianDiffusion):
+        """A sampler's model_fn (x_t, t) -> output whose clean estimate is moved to these statistics; the
+        output stays in the network's own terms (eps, x0 or v)."""
+
+        def matched(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            out = model_fn(x, t)
+            delta = self.shift(diffusion.predict_x0(out, x, t))
+            # x0 = sqrt(1 / abar) x_t - sqrt(1 / abar - 1) eps = sqrt(abar) x_t - sqrt(1 - abar) v
+            per_unit = {
+                "x0": None,
+                "eps": diffusion.sqrt_recipm1_alphas_cumprod,
+                "v": diffusion.sqrt_one_minus_alphas_cumprod,
+            }[diffusion.prediction]
+            return out + delta if per_unit is None else out - delta / extract(per_unit, t, x)
+
+        return matched
