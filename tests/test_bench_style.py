@@ -7,12 +7,14 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 import tiny
 import torch
 from test_evaluator import tiny_datamodule, tiny_trainer
 
-from walkdiff.bench.style import CEILING, EXAMPLES, FLOOR, LABEL, NEAREST, left_out_styles
+from walkdiff.bench.style import CEILING, CODE_ALONE, EXAMPLES, FLOOR, LABEL, NEAREST, left_out_styles
+from walkdiff.bench.style_time import _ramp_seams
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.models.evaluator import MotionEvaluator
@@ -82,7 +84,7 @@ def test_bench_style_writes_every_section_and_keeps_an_earlier_run(models, tmp_p
 
     seen = result["seen"]
     assert seen["styles"] == ["neutral", "old"]  # the styles the code model holds codes for
-    assert list(seen["rows"]) == [EXAMPLES, LABEL] and seen["windows"] == sum(
+    assert list(seen["rows"]) == [EXAMPLES, CODE_ALONE, LABEL] and seen["windows"] == sum(
         map(len, seen["example_clips"].values())
     )
     assert list(result["seen_vs_labels"]["rows"]) == [
@@ -92,9 +94,10 @@ def test_bench_style_writes_every_section_and_keeps_an_earlier_run(models, tmp_p
     unseen = result["unseen"]
     assert unseen["left_out_styles"] == ["old"] == left_out_styles(models["unseen"])  # from the checkpoint
     assert unseen["training_styles"] == ["neutral"] and set(unseen["example_clips"]) == {"old"}
-    assert list(unseen["sampling"]["rows"]) == [EXAMPLES, CEILING, NEAREST, FLOOR]
+    assert list(unseen["sampling"]["rows"]) == [EXAMPLES, CODE_ALONE, CEILING, NEAREST, FLOOR]
     baselines = ["baseline: source unchanged", "baseline: real target-style clips"]
-    assert list(unseen["transfer"]["rows"]) == [f"{EXAMPLES} (mean code)", CEILING, NEAREST, *baselines]
+    expected = [f"{EXAMPLES} (mean code)", CODE_ALONE, CEILING, NEAREST, *baselines]
+    assert list(unseen["transfer"]["rows"]) == expected
     assert set(unseen["sampling"]["nearest_training_style"].values()) == {"neutral"}
     assert unseen["transfer"]["pairs"] == unseen["transfer"]["sources"] > 0
 
@@ -136,3 +139,18 @@ def test_bench_style_writes_every_section_and_keeps_an_earlier_run(models, tmp_p
 def test_a_model_trained_on_every_style_has_no_unseen_style(models):
     with pytest.raises(WalkdiffError, match="no style is unseen"):
         left_out_styles(models["codes"])
+
+
+def test_a_ramp_is_judged_against_stretches_that_hold_as_many_window_joins():
+    """Joins every 12 frames jolt the speed; a ramp that holds the same joins as the stretches it is
+    compared with passes, a ramp with a jump of its own does not."""
+    fps, segment, transition, hop = 30.0, 4.0, 1.0, 12
+    frames = int(3 * segment * fps)
+    speeds = np.ones((8, frames))
+    speeds[:, ::hop] += 0.5  # a jolt at every join
+    assert all(_ramp_seams(speeds, fps, segment, transition, hop))
+    jumped = speeds.copy()
+    middle = int(segment * fps)
+    jumped[0, middle - 10 : middle + 10 : 2] += 0.3  # the first clip jolts at its first ramp
+    seams = _ramp_seams(jumped, fps, segment, transition, hop)
+    assert seams[0] is False and all(seams[2:])

@@ -98,6 +98,13 @@ def test_a_sample_matched_to_a_clip_has_statistics_nearer_it_than_its_code_alone
     manifest = commands.sample(xia_tiny["style_codes"], tmp_path / "m", style_clips=clip, num=1, frames=24,
                                gif=False, match_clips=0.5, **FAST)  # fmt: skip
     assert manifest["settings"]["match_clips"] == 0.5
+    assert manifest["settings"]["fix_feet"] is True  # matching moves channels apart: feet pinned by default
+    alone = commands.sample(xia_tiny["style_codes"], tmp_path / "a", style_clips=clip, num=1, frames=24,
+                            gif=False, match_clips=0.0, **FAST)  # fmt: skip
+    assert alone["settings"]["fix_feet"] is False
+    asked = commands.sample(xia_tiny["style_codes"], tmp_path / "n", style_clips=clip, num=1, frames=24,
+                            gif=False, fix_feet=False, **FAST)  # fmt: skip
+    assert asked["settings"]["fix_feet"] is False
     argv = ["sample", "--ckpt", str(xia_tiny["style_codes"]), "--style-clip", clip, "--match-clips", "2",
             "--out", str(tmp_path / "bad")]  # fmt: skip
     assert main(argv) == 1

@@ -33,6 +33,7 @@ from walkdiff.evaluation.transfer import (
     transfer_row,
     transfer_verdict,
 )
+from walkdiff.motion.footfix import fix_feet_features
 
 SAMPLE_METRICS = ("style_acc", "fmd", "kid", "diversity", "skate_ratio", "jitter")
 TRANSFER_METRICS = ("target_style_acc", "content_kept", "content_distance", "fmd", "kid", "skate_ratio")
@@ -84,7 +85,10 @@ def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.
         if match is not None:
             how = replace(how, match=StyleStatistics.stack([match[s] for s in names]))
         x = restyle(model, x0, target, content, strength, how, generator, keep)
-        restyled = torch.from_numpy(model.to_raw(x, True))
+        restyled = model.to_raw(x, True)
+        if match is not None:  # as `transfer` makes them: feet pinned where statistics are matched
+            restyled = fix_feet_features(restyled, model.profile, model.spec["fps"])
+        restyled = torch.from_numpy(restyled)
         outputs += _clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
         paired += [source] * len(target)
         targets += names

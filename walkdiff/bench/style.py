@@ -42,6 +42,7 @@ from walkdiff.evaluation.transfer import real_targets, transfer_baselines, trans
 from walkdiff.metrics.bootstrap import Reference, interval, resample_weights
 from walkdiff.metrics.protocol import PROPORTION
 from walkdiff.models.style_statistics import StyleStatistics
+from walkdiff.motion.footfix import fix_feet_features
 from walkdiff.styled.generation import Sampling
 from walkdiff.styled.pipeline import StyledGenerator
 from walkdiff.styled.style_examples import MATCH_CLIPS, mixed_code
@@ -96,7 +97,7 @@ def bench_style(
     seed: int = 0,
     bootstrap: int = 200,
     batch_size: int = 64,
-    timeline_clips: int = 16,
+    timeline_clips: int = 32,
     match_clips: float = MATCH_CLIPS,
 ) -> dict:
     from walkdiff.styled.generation import load_generator
@@ -411,7 +412,7 @@ def _sample_row(run: Run, model, inputs: torch.Tensor, targets: list[str], score
                 sampler=run.sampling.sampler, steps=run.sampling.steps, generator=generator, progress=hook,
                 match=None if match is None else match.rows(i, i + size),
             )  # fmt: skip
-            raws.append(torch.from_numpy(model.to_raw(x, True)))
+            raws.append(torch.from_numpy(_made(model, x, match)))
     clips = _clips_of_raw(scorer, torch.cat(raws), targets, None, "sample")
     for clip, c in zip(clips, content, strict=True):
         clip.content = contents[int(c)]
@@ -419,6 +420,13 @@ def _sample_row(run: Run, model, inputs: torch.Tensor, targets: list[str], score
     correct = scorer.recognition(scored)
     summary = scorer.statistics(scored, correct).bootstrap(run.bootstrap, run.seed)
     return summary, _per_style(run, scored, correct["style_acc"])
+
+
+def _made(model, x: torch.Tensor, match: StyleStatistics | None) -> np.ndarray:
+    """Sampled windows in data units as `sample` writes them: grounded, and with matched statistics
+    their feet pinned (`Request.pins_feet`)."""
+    raw = model.to_raw(x, True)
+    return raw if match is None else fix_feet_features(raw, model.profile, model.spec["fps"])
 
 
 def _per_style(run: Run, windows: WindowSet, hits: torch.Tensor) -> dict[str, dict]:

@@ -326,7 +326,7 @@ def add_style(bench) -> None:
     b.add_argument("--seed", type=count(0), default=0)
     b.add_argument("--bootstrap", type=count(0), default=200, help="resamples of the clips (default 200)")
     b.add_argument(
-        "--timeline-clips", type=count(1), default=16, help="clips of three styles for the transitions (16)"
+        "--timeline-clips", type=count(1), default=32, help="clips of three styles for the transitions (32)"
     )
     b.add_argument(
         "--match-clips",

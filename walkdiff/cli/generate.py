@@ -73,7 +73,10 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--blend", type=count(0), default=None, help="of those, frames cross-faded (default: half)"
     )
-    p.add_argument("--fix-feet", action="store_true", help="pin feet during predicted contacts (IK)")
+    p.add_argument(
+        "--fix-feet", action=argparse.BooleanOptionalAction, default=None,
+        help="pin feet during predicted contacts (IK); default: on where --style-clip statistics are matched",
+    )  # fmt: skip
     p.add_argument(
         "--no-ground", dest="ground", action="store_false",
         help="keep the height as sampled (default: planted feet lifted or lowered onto the floor)",

@@ -60,6 +60,11 @@ class Request:
     examples: tuple[StyleExample, ...] = ()
     timeline: StyleTimeline | None = None
 
+    def pins_feet(self, fix_feet: bool | None) -> bool:
+        """Whether feet are pinned during contacts: as asked, or by default where example clips' statistics
+        are matched, which moves each channel on its own and so lets the planted feet slide."""
+        return self.sampling.match is not None if fix_feet is None else fix_feet
+
 
 def check_sample_size(num: int, frames: int) -> None:
     """Refuse no clips, and clips too long for memory, before any work (`walkdiff sample`: before the
@@ -129,7 +134,7 @@ class StyledGenerator(Pipeline):
         overlap: int | None = None,
         blend: int | None = None,
         ground: bool = True,
-        fix_feet: bool = False,
+        fix_feet: bool | None = None,
         to: TargetRig | str | os.PathLike | None = None,
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
@@ -140,7 +145,8 @@ class StyledGenerator(Pipeline):
         rig to play them on (`Take.retarget`). `style_clips`: example clips whose style to take, alone or
         mixed with `style` ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip, weight) pairs). A
         timeline `style` ('neutral@0,old@4s') changes style over time, ramped over `transition` seconds.
-        `match_clips`: how far the clips' pose statistics are matched too (0: their code alone)."""
+        `match_clips`: how far the clips' pose statistics are matched too (0: their code alone).
+        `fix_feet`: pin feet during contacts (default: where clips' statistics are matched)."""
         check_sample_size(num, frames)
         sampling = Sampling(sampler, steps, eta, guidance)
         request = self.request(style, content, sampling, overlap, blend, style_clips, transition, match_clips)
@@ -163,7 +169,7 @@ class StyledGenerator(Pipeline):
         overlap: int | None = None,
         blend: int | None = None,
         ground: bool = True,
-        fix_feet: bool = False,
+        fix_feet: bool | None = None,
         to: TargetRig | str | os.PathLike | None = None,
         style_clips=None,
         match_clips: float = MATCH_CLIPS,
@@ -299,7 +305,7 @@ class StyledGenerator(Pipeline):
         )
 
     def generate(
-        self, request: Request, num: int, frames: int, seed: int, ground: bool, fix_feet: bool
+        self, request: Request, num: int, frames: int, seed: int, ground: bool, fix_feet: bool | None
     ) -> list[Motion]:
         """`num` canonical clips of `frames` frames, drawn as one batch from `seed`."""
         model = self.model
@@ -313,7 +319,8 @@ class StyledGenerator(Pipeline):
             model, _batch(request.style, num), _batch(request.content, num), frames, request.sampling,
             generator, request.overlap, request.blend, style_at,
         )  # fmt: skip
-        clips = [self._decoded(raw, None, fix_feet) for raw in model.to_raw(x, ground)]
+        pinned = request.pins_feet(fix_feet)
+        clips = [self._decoded(raw, None, pinned) for raw in model.to_raw(x, ground)]
         check_finite(clips, request.sampling)
         return clips
 
@@ -325,7 +332,7 @@ class StyledGenerator(Pipeline):
         keep_trajectory: bool,
         seed: int,
         ground: bool,
-        fix_feet: bool,
+        fix_feet: bool | None,
     ) -> Motion:
         """A canonical clip (from `source`) restyled, placed where the source starts."""
         model = self.model
@@ -335,7 +342,8 @@ class StyledGenerator(Pipeline):
             model, features, _batch(request.style, 1), _batch(request.content, 1), strength, request.sampling,
             generator, keep_trajectory, request.overlap, request.blend,
         )  # fmt: skip
-        result = self._decoded(model.to_raw(x, ground)[0], start_pose(source, model.profile), fix_feet)
+        start = start_pose(source, model.profile)
+        result = self._decoded(model.to_raw(x, ground)[0], start, request.pins_feet(fix_feet))
         check_finite([result], request.sampling)
         return result
 
