@@ -181,12 +181,13 @@ def walked_after(walker: WalkController, command: dict, frames: int) -> np.ndarr
 
 
 def test_the_command_lines_turn_as_the_api_does():
-    from walkdiff.autoregressive.controller import HEADING_ASSIST, TURN_RATE
+    from walkdiff.autoregressive.controller import HEADING_ASSIST, TRANSITION, TURN_RATE
     from walkdiff.cli.main import build_parser
 
     for command in (["control"], ["play"], ["bench", "play", "--evaluator", "e.ckpt", "--out", "o.json"]):
         args = build_parser().parse_args([*command, "--ckpt", "x.ckpt"])
         assert args.turn_rate == TURN_RATE and args.heading_assist == HEADING_ASSIST and args.foot_lock
+        assert args.transition == TRANSITION
         assert not build_parser().parse_args([*command, "--ckpt", "x.ckpt", "--no-foot-lock"]).foot_lock
 
 

@@ -203,6 +203,9 @@ def test_config_trains_through_the_cli(synthetic_root, tmp_path, monkeypatch):
     assert model.style_speed[0] > 0 and model.control_normalizer.mean.abs().sum() > 0  # fitted
     # The shipped walker reads whole poses with its MLP (no fused twin) and trains with the body terms.
     assert isinstance(model.eps_net, PoseMLP) and model.hparams.lambda_foot > 0
+    # ... with each frame's control and style beside the LSTM's state (not only through its memory).
+    assert model.hparams.control_to_denoiser
+    assert model.eps_net.cond.in_features == model.hparams.hidden + model.hparams.control_hidden
     path = Polyline.of([[0, 0], [0, 20]])
     raw, _ = model.generate(
         path, torch.tensor([0]), torch.tensor([12.0]), 3, torch.Generator().manual_seed(0)
@@ -210,6 +213,8 @@ def test_config_trains_through_the_cli(synthetic_root, tmp_path, monkeypatch):
     assert raw.shape == (1, 3, model.spec["feature_dim"]) and np.isfinite(raw).all()
     with pytest.raises(WalkdiffError, match="model.denoiser must be timegrad or mlp"):
         PathWalker(model.spec, denoiser="unet")
+    with pytest.raises(WalkdiffError, match="control_to_denoiser needs model.denoiser mlp"):
+        PathWalker(model.spec, control_to_denoiser=True)
 
 
 def test_a_path_too_long_for_memory_is_refused_before_walking(trained, tmp_path, capsys):

@@ -24,7 +24,8 @@ the command instead of from a path, every frame, from where the walker is:
   most `heading_assist` degrees/s (`assist`); **foot lock**: planted feet held where they landed
   (`foot_lock.FootLock`). Both change only the frame shown and kept, never what the walker feeds back.
 - **Speed and style** act on the next frame: the pace at once, the style embedding (a name, a mix
-  'angry:0.7,old:0.3' or mixing weights) at once or ramped linearly over `transition` seconds. With no
+  'angry:0.7,old:0.3' or mixing weights) ramped linearly over `transition` seconds (`TRANSITION`; 0: at
+  once, which a walker whose denoiser reads the style itself shows as a jolt). With no
   speed given the walker walks at the style's own mean speed in the training data (mixed as the styles
   are), following the style as it changes.
 
@@ -53,6 +54,7 @@ from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 
+TRANSITION = 0.5  # seconds a style change is ramped over (live-control.md: seams at style switches)
 TURN_RATE = 720.0  # degrees per second the control's path bends at towards a new direction
 MAX_AIM = math.pi / 2  # the control never aims further off the heading than this (no walking backwards)
 HEADING_ASSIST = 45.0  # degrees per second the root may be turned beyond the walker's own turn
@@ -194,7 +196,7 @@ class WalkController:
         seed: int = 0,
         sampler: SamplerChoice | None = None,
         characters: int = 1,
-        transition: float = 0.0,
+        transition: float = TRANSITION,
         turn_rate: float = TURN_RATE,
         heading_assist: float = HEADING_ASSIST,
         foot_lock: bool = True,

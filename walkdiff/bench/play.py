@@ -41,7 +41,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.controller import HEADING_ASSIST, TURN_RATE, WalkController, controller
+from walkdiff.autoregressive.controller import (
+    HEADING_ASSIST,
+    TRANSITION,
+    TURN_RATE,
+    WalkController,
+    controller,
+)
 from walkdiff.autoregressive.walk import load_walker
 from walkdiff.bench.measure import machine, report
 from walkdiff.common.errors import WalkdiffError
@@ -416,7 +422,7 @@ def bench_play(
     sampler: str = "ddim",
     steps: int | None = None,
     eta: float | None = None,
-    transition: float = 0.0,
+    transition: float = TRANSITION,
     characters: tuple[int, ...] = (1, 4, 8, 16, 32),
     timing_frames: int = 30,
     **steering,

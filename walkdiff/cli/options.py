@@ -41,8 +41,8 @@ def steering_options(p: argparse.ArgumentParser) -> None:
     """How a steered walker (`WalkController`) answers its commands: the same options and defaults on
     `play`, `control` and `bench play` (the defaults written here so that parsing imports no torch)."""
     p.add_argument(
-        "--transition", type=number(0), default=0.0,
-        help="seconds a style change is ramped over (default 0: at once)",
+        "--transition", type=number(0), default=0.5,
+        help="seconds a style change is ramped over (default 0.5; 0: at once)",
     )  # fmt: skip
     p.add_argument(
         "--turn-rate", type=number(0, above=True), default=720.0,

@@ -375,9 +375,13 @@ class AutoregressiveDiffusion(MotionModule):
         h, _ = self.encoder(previous, control)
         x0, t = poses.reshape(b * length, dim), self.diffusion.sample_timesteps(b * length)
         x_t = self.diffusion.q_sample(x0, t, noise := torch.randn_like(x0))
-        cond = self.eps_net.condition(h.reshape(b * length, -1))
+        cond = self.eps_net.condition(self.denoiser_input(h, control).reshape(b * length, -1))
         target = self.diffusion.training_target(x0, noise, t)
         return self.eps_net(x_t, self.eps_net.embed_steps(t), cond), target, x_t, t
+
+    def denoiser_input(self, h: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
+        """What the eps network is conditioned on: the encoder state (a subclass may add the control)."""
+        return h
 
     def sampling_tables(self, sampler: SamplerChoice | None = None, fused: bool = True) -> FrameTables:
         """What sampling a frame needs, computed once per generation from the current weights: the
@@ -386,9 +390,8 @@ class AutoregressiveDiffusion(MotionModule):
         steps = (sampler or SamplerChoice()).table(self.diffusion)
         embeddings = self.eps_net.embed_steps(torch.arange(self.diffusion.num_timesteps, device=self.device))
         fused = fused and isinstance(self.eps_net, EpsNetwork)  # only TimeGrad's network has a fused twin
-        return FrameTables(
-            steps, embeddings, FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
-        )
+        twin = FusedEps(self.eps_net, self.spec["feature_dim"]) if fused else None
+        return FrameTables(steps, embeddings, twin)
 
     def sample_frame(
         self, h: torch.Tensor, tables: FrameTables, generator: torch.Generator | None
@@ -401,13 +404,8 @@ class AutoregressiveDiffusion(MotionModule):
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             return self.eps_net(x, tables.embeddings[:, t], cond)
 
-        return run_steps(
-            model_fn,
-            self.diffusion,
-            (h.shape[0], self.spec["feature_dim"]),
-            tables.steps,
-            generator=generator,
-        )
+        shape = (h.shape[0], self.spec["feature_dim"])
+        return run_steps(model_fn, self.diffusion, shape, tables.steps, generator=generator)
 
     # ------------------------------------------------------------ frame by frame (generation, streaming)
 
@@ -431,7 +429,7 @@ class AutoregressiveDiffusion(MotionModule):
         their poses (R, D), normalised; those streams' state moves on by the frame."""
         previous, state = streams.select(rows, self.encoder.lstm)
         h, state = self.encoder(previous, control[:, None], state)
-        x = self.sample_frame(h[:, 0], streams.tables, generator)
+        x = self.sample_frame(self.denoiser_input(h[:, 0], control), streams.tables, generator)
         streams.update(rows, x[:, None], state)
         return x
 

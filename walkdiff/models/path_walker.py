@@ -119,6 +119,7 @@ class PathWalker(AutoregressiveDiffusion):
         denoiser_hidden: int = 512,
         denoiser_layers: int = 3,
         prediction: str = "eps",
+        control_to_denoiser: bool = False,
     ):
         super().__init__(data_spec)
         self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
@@ -131,9 +132,12 @@ class PathWalker(AutoregressiveDiffusion):
         control_dim = 2 * len(self.ahead)
         if denoiser not in ("timegrad", "mlp"):
             raise WalkdiffError(f"model.denoiser must be timegrad or mlp, got {denoiser!r}")
+        if control_to_denoiser and denoiser != "mlp":
+            raise WalkdiffError("model.control_to_denoiser needs model.denoiser mlp")
         eps_net = None
         if denoiser == "mlp":  # see pose_mlp.py: TimeGrad's network samples the legs from the noise
-            eps_net = PoseMLP(spec["feature_dim"], hidden, denoiser_hidden, denoiser_layers)
+            cond_dim = hidden + (control_hidden if control_to_denoiser else 0)
+            eps_net = PoseMLP(spec["feature_dim"], cond_dim, denoiser_hidden, denoiser_layers)
         self.build(
             control_dim, hidden, lstm_layers, control_hidden, channels, residual_layers,
             dilation_cycle, dropout, timesteps, schedule, beta_start, beta_end, eps_net, prediction,
@@ -159,6 +163,12 @@ class PathWalker(AutoregressiveDiffusion):
         (B, F, control_hidden)."""
         embedded = style @ self.style.weight if style.is_floating_point() else self.style(style)
         return self.encoder.audio(self.control_normalizer.normalize(control)) + embedded[:, None]
+
+    def denoiser_input(self, h: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
+        """The encoder state, and with `control_to_denoiser` the frame's encoded control and style beside it:
+        the style reaches each frame's denoiser directly, not only through the LSTM's memory of past poses
+        (a walker fed its own frames otherwise drifts towards the styles it makes best)."""
+        return torch.cat([h, control], dim=-1) if self.hparams.control_to_denoiser else h
 
     def pace(self, speed: torch.Tensor) -> np.ndarray:
         """(B, K) arc lengths of the control's points ahead of a walker at `speed` (B,) units/s."""
