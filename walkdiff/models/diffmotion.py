@@ -404,6 +404,7 @@ class AutoregressiveDiffusion(MotionModule):
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             return self.eps_net(x, tables.embeddings[:, t], cond)
 
+        model_fn = model_fn if tables.guide is None else tables.guide.guide(model_fn)
         shape = (h.shape[0], self.spec["feature_dim"])
         return run_steps(model_fn, self.diffusion, shape, tables.steps, generator=generator)
 
@@ -567,6 +568,7 @@ class FrameTables:
 
     def __init__(self, steps: SamplerSteps, embeddings: torch.Tensor, fused: FusedEps | None):
         self.steps, self.embeddings, self.fused = steps, embeddings, fused
+        self.guide = None  # a RunningMatch moving each clean estimate (the unfused path only)
         if fused is not None:
             # Per step, the output layer times the update's weights: x <- a x + b out, x0 = px x + po out.
             self.step_bias = [fused.step_bias(embeddings[:, t]) for t in steps.timesteps]
@@ -586,11 +588,8 @@ class FrameTables:
         x, x0_prev = noise(), None
         for k in range(len(steps.timesteps)):
             features = fused.features(x, (cond + self.step_bias[k]).unbind(0), space)
-            x0 = (
-                None
-                if self.estimate is None
-                else torch.addmm(x, features, self.estimate[k], beta=steps.x0_x_coef[k])
-            )
+            estimate = self.estimate
+            x0 = None if estimate is None else torch.addmm(x, features, estimate[k], beta=steps.x0_x_coef[k])
             x = torch.addmm(x, features, self.update[k], beta=steps.x_coef[k])
             if steps.prev_coef[k]:
                 x.add_(x0_prev, alpha=steps.prev_coef[k])

@@ -26,13 +26,27 @@ from walkdiff.motion.representation import FeatureLayout
 MAX_SCALE = 3.0  # a channel's spread is scaled by at most this (or 1/this): a still channel is not blown up
 
 
-def matched_channels(dim: int) -> torch.Tensor:
-    """(D,) 1 on the channels whose statistics carry style: root speed and height, and the pose."""
+def matched_channels(dim: int, root_speed: bool = True) -> torch.Tensor:
+    """(D,) 1 on the channels whose statistics carry style: root speed and height, and the pose
+    (`root_speed` False: not the speed, where a path and a commanded pace set it)."""
     layout = FeatureLayout.from_dim(dim)
     mask = torch.zeros(dim)
-    for block in (layout.root_vel, layout.root_height, layout.rotations):
+    for block in (layout.root_vel, layout.root_height, layout.rotations)[0 if root_speed else 1 :]:
         mask[block] = 1.0
     return mask
+
+
+def moved_output(
+    diffusion: GaussianDiffusion, out: torch.Tensor, x: torch.Tensor, t: torch.Tensor, delta: torch.Tensor
+) -> torch.Tensor:
+    """A network output (eps, x0 or v) whose clean estimate is moved by `delta`, in the network's terms."""
+    # x0 = sqrt(1 / abar) x_t - sqrt(1 / abar - 1) eps = sqrt(abar) x_t - sqrt(1 - abar) v
+    per_unit = {
+        "x0": None,
+        "eps": diffusion.sqrt_recipm1_alphas_cumprod,
+        "v": diffusion.sqrt_one_minus_alphas_cumprod,
+    }[diffusion.prediction]
+    return out + delta if per_unit is None else out - delta / extract(per_unit, t, x)
 
 
 @dataclass(frozen=True)
@@ -88,13 +102,54 @@ class StyleStatistics:
 
         def matched(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             out = model_fn(x, t)
-            delta = self.shift(diffusion.predict_x0(out, x, t))
-            # x0 = sqrt(1 / abar) x_t - sqrt(1 / abar - 1) eps = sqrt(abar) x_t - sqrt(1 - abar) v
-            per_unit = {
-                "x0": None,
-                "eps": diffusion.sqrt_recipm1_alphas_cumprod,
-                "v": diffusion.sqrt_one_minus_alphas_cumprod,
-            }[diffusion.prediction]
-            return out + delta if per_unit is None else out - delta / extract(per_unit, t, x)
+            return moved_output(diffusion, out, x, t, self.shift(diffusion.predict_x0(out, x, t)))
+
+        return matched
+
+
+class RunningMatch:
+    """The same matching for a model that makes one frame at a time (the path walker): it has no window
+    to take a mean and a spread over, so its own recent frames stand in, a running mean and variance of
+    the network's clean frames over about `span` frames (before they are moved: the moves do not feed
+    the statistics they are measured by). Each row of a batch keeps its own. The root's speed is left to
+    the path and the commanded pace."""
+
+    def __init__(self, target: StyleStatistics, span: int, diffusion: GaussianDiffusion, last_step: int):
+        self.target, self.diffusion, self.last_step = target, diffusion, last_step
+        self.rate = 1.0 / max(1, span)
+        self.mean: torch.Tensor | None = None  # (B, D)
+        self.variance: torch.Tensor | None = None
+
+    def shift(self, x0: torch.Tensor) -> torch.Tensor:
+        """How far (B, D) to move the clean frames x0 (B, D)."""
+        if self.mean is None:  # the first frame: no spread to measure yet, its mean moved alone
+            mean, scale = x0, 1.0
+        else:
+            mean, spread = self.mean, self.variance.sqrt().clamp_min(1e-6)
+            scale = (self.target.spread.to(x0) / spread).clamp(1 / MAX_SCALE, MAX_SCALE)
+        moved = (x0 - mean) * scale + self.target.mean.to(x0)
+        mask = matched_channels(x0.shape[-1], root_speed=False).to(x0)
+        return self.target.strength.to(x0) * mask * (moved - x0)
+
+    def record(self, x0: torch.Tensor) -> None:
+        """A frame made: its clean estimate (B, D) joins the running statistics."""
+        if self.mean is None:
+            self.mean, self.variance = x0.clone(), self.target.spread.to(x0).square().expand_as(x0).clone()
+            return
+        deviation = x0 - self.mean
+        self.mean = self.mean + self.rate * deviation
+        self.variance = (1 - self.rate) * (self.variance + self.rate * deviation.square())
+
+    def guide(self, model_fn):
+        """A frame sampler's model_fn with each clean estimate moved; the last step's joins the record."""
+        diffusion = self.diffusion
+
+        def matched(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            out = model_fn(x, t)
+            x0 = diffusion.predict_x0(out, x, t)
+            delta = self.shift(x0)
+            if int(t[0]) == self.last_step:
+                self.record(x0)
+            return moved_output(diffusion, out, x, t, delta)
 
         return matched
