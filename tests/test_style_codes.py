@@ -16,13 +16,13 @@ import walkdiff
 from walkdiff.cli.main import main
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.models.style_encoder import CodeStyle, StyleEncoder, reference_windows
+from walkdiff.models.style_examples import example_windows
 from walkdiff.models.style_labels import parse_timeline
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.rotations import euler_to_matrix
 from walkdiff.motion.skeleton import Motion
 from walkdiff.styled import commands
-from walkdiff.styled.style_examples import example_windows
 
 FAST = dict(sampler="ddim", steps=2)
 

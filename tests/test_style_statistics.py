@@ -6,6 +6,8 @@ that gives styles never seen in training is measured by `walkdiff bench style` (
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -13,10 +15,10 @@ import torch
 import walkdiff
 from walkdiff.cli.main import main
 from walkdiff.diffusion.gaussian import GaussianDiffusion
-from walkdiff.models.style_statistics import MAX_SCALE, StyleStatistics, matched_channels
+from walkdiff.models.style_examples import example_windows
+from walkdiff.models.style_statistics import MAX_SCALE, RunningMatch, StyleStatistics, matched_channels
 from walkdiff.motion.representation import FeatureLayout, encode
 from walkdiff.styled import commands
-from walkdiff.styled.style_examples import example_windows
 
 FAST = dict(sampler="ddim", steps=4)
 JOINTS = 3
@@ -116,3 +118,57 @@ def test_a_sample_matched_to_a_clip_has_statistics_nearer_it_than_its_code_alone
 def coded_features(generator, take) -> np.ndarray:
     """A sampled take's features as the model encodes clips (the statistics' own terms)."""
     return encode(generator.source(take), generator.model.profile)
+
+
+# ---------------------------------------------------------------- frame by frame: the path walker
+
+
+def test_running_match_moves_frames_to_the_example_with_its_own_recent_frames():
+    target = StyleStatistics.mixed([(StyleStatistics.of(windows(4, 7, scale=2.0, shift=1.0)), 1.0)], 1.0)
+    diffusion = GaussianDiffusion(20, "linear", 1e-3, 0.2, "x0")
+    running = RunningMatch(target, span=10, diffusion=diffusion, last_step=0)
+    layout = FeatureLayout(JOINTS)
+    frames = torch.randn(240, 2, DIM, generator=torch.Generator().manual_seed(8)) * 0.8  # within MAX_SCALE
+    made = []
+    for frame in frames:
+        moved = running.guide(lambda x, t, f=frame: f)(torch.zeros(2, DIM), torch.zeros(2, dtype=torch.long))
+        made.append(moved)
+    made = torch.stack(made[20:])  # after the running statistics have settled
+    pose = layout.rotations
+    assert (made.mean(0)[:, pose] - target.mean[pose]).abs().mean() < 0.2
+    spread = made.std(0, correction=0)[:, pose].mean()
+    assert abs(spread / target.spread[pose].mean() - 1) < 0.25
+    speed = layout.root_vel  # left to the path and the commanded pace
+    assert torch.equal(made[:, :, speed], frames[20:, :, speed])
+
+
+def test_walk_takes_an_example_clip_and_records_it(xia_tiny, xia_dir, zeggs_dir, tmp_path, capsys):
+    """The tiny walker on real Xia: a walk with an example clip has the clip's pose statistics nearer
+    than the label alone; the command records the clips, and refuses a clip on another skeleton and
+    --style-clip with --stream."""
+    follower = walkdiff.load(xia_tiny["walker"])
+    clip = str(xia_dir / "old_02_000.bvh")
+    target = follower.statistics(clip)
+    pose = FeatureLayout(follower.model.skeleton.num_joints).rotations
+    options = dict(seed=2, sampler="ddim", steps=2)
+
+    def distance(style_clips) -> float:
+        take = follower.follow([[0, 0], [0, 3]], "neutral", style_clips=style_clips, **options)
+        walked = follower.model.normalizer.normalize(
+            torch.from_numpy(encode(follower.source(take), follower.model.profile))
+        )
+        return float((walked.mean(0) - target.mean)[pose].norm())
+
+    assert distance(clip) < 0.5 * distance(None)
+    path = tmp_path / "line.json"
+    path.write_text('{"points": [[0, 0], [0, 2]]}')
+    argv = ["walk", "--ckpt", str(xia_tiny["walker"]), "--style", "neutral", "--style-clip", f"{clip}:2",
+            "--match-clips", "0.5", "--path", str(path), "--out", str(tmp_path / "out"), "--no-gif",
+            "--sampler", "ddim", "--steps", "2"]  # fmt: skip
+    assert main(argv) == 0
+    manifest = json.loads(capsys.readouterr().out)
+    assert manifest["style_clips"] == [{"clip": clip, "weight": 2.0}] and manifest["match_clips"] == 0.5
+    with pytest.raises(walkdiff.WalkdiffError, match="another skeleton .* missing LHipJoint"):
+        follower.follow([[0, 0], [0, 3]], "neutral", style_clips=str(zeggs_dir / "067_Speech_2_x_1_0.bvh"))
+    assert main(argv[:-9] + ["--path", "-", "--out", str(tmp_path / "s"), "--stream"]) == 1
+    assert "--style-clip is not for --stream" in capsys.readouterr().err

@@ -21,7 +21,9 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.style_examples import MATCH_CLIPS, check_match_clips, example_windows, parse_style_clips
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_path
@@ -46,10 +48,12 @@ def walk_paths(
     seed: int,
     frames: int | None = None,
     sampler: SamplerChoice | None = None,
+    match: StyleStatistics | None = None,
 ) -> tuple[np.ndarray, tuple[np.ndarray, float], np.ndarray]:
     """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id (or one walk
     of a `StyleTimeline`), each frame drawn by `sampler` (default DDPM); refused before any work where
-    the path is too long for memory, with a progress bar over the frames."""
+    the path is too long for memory, with a progress bar over the frames. `match`: example clips'
+    statistics every walk is moved to (`PathFollower.statistics`)."""
     style_at, timeline = None, styles if isinstance(styles, StyleTimeline) else None
     style = torch.tensor(styles) if timeline is None else timeline.at(0.0)[None]
     known = model.style_speed.cpu()
@@ -71,7 +75,7 @@ def walk_paths(
     generator = torch.Generator(device=model.device).manual_seed(seed)
     with progress(desc="walking", unit="frame") as bar:
         raw, start = model.generate(
-            path, style, speeds, frames, generator, step_hook(bar), sampler, style_at=style_at
+            path, style, speeds, frames, generator, step_hook(bar), sampler, style_at=style_at, match=match
         )
     return raw, start, speeds.numpy()
 
@@ -114,16 +118,20 @@ class PathFollower(Pipeline):
         eta: float = 0.0,
         to: TargetRig | str | os.PathLike | None = None,
         transition: float = DEFAULT_TRANSITION,
+        style_clips=None,
+        match_clips: float = MATCH_CLIPS,
     ) -> Take:
         """`style` walking along `path` ((x, z) points or a Polyline in metres, or a path file) at `speed`
         m/s: by default the file's, else the style's own pace in the training data. `style` may be a
         timeline ('neutral@0,old@4s', ramped over `transition` s). `to`: a rig to play it on (its root
-        path is then the walk's scaled by the legs' length ratio)."""
+        path is then the walk's scaled by the legs' length ratio). `style_clips`: example clips whose
+        pose statistics the walk takes on as well, at `match_clips` (docs/walking.md)."""
         choice = SamplerChoice(sampler, steps, eta)
         rig = TargetRig.of(to)
+        match = self.statistics(style_clips, match_clips)
         metres, file_speed = path_in_metres(path)
         speed = file_speed if speed is None else speed
-        motion, _ = self.walk_along(metres, style, speed, seed, choice, transition)
+        motion, _ = self.walk_along(metres, style, speed, seed, choice, transition, match)
         return self.take(motion, rig)
 
     def controller(
@@ -145,6 +153,20 @@ class PathFollower(Pipeline):
 
         return controller(self.model, style, speed, seed, sampler, steps, eta, characters, **options)
 
+    def statistics(self, style_clips, match_clips: float = MATCH_CLIPS) -> StyleStatistics | None:
+        """The example clips' statistics ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip,
+        weight) pairs), weighted, matched at `match_clips`; None without clips. The walker has no style
+        encoder: its style is still the label's, the clips give the walk their posture and swing."""
+        if not style_clips:
+            return None
+        check_match_clips(match_clips)
+        weighted = []
+        for clip, weight in parse_style_clips(style_clips):
+            where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
+            windows = example_windows(self.model, self.source(clip, "--style-clip"), where)
+            weighted.append((StyleStatistics.of(windows), weight))
+        return StyleStatistics.mixed(weighted, match_clips)
+
     def check(self, style: str, speed: float | None) -> int:
         """The style's index (-1 for a timeline), once the style and the speed (m/s, None: the style's
         own) are valid."""
@@ -164,6 +186,7 @@ class PathFollower(Pipeline):
         seed: int,
         choice: SamplerChoice,
         transition: float = DEFAULT_TRANSITION,
+        match: StyleStatistics | None = None,
     ) -> tuple[Motion, float]:
         """The canonical walk of `style` along a path in metres at `speed` m/s (None: the style's own),
         and the speed it walked at in m/s."""
@@ -173,7 +196,9 @@ class PathFollower(Pipeline):
         polyline = Polyline.of(metres.points / unit)  # the model walks in its data's units
         speed = None if speed is None else speed / unit
         styles = [index] if timeline is None else timeline
-        raw, start, speeds = walk_paths(self.model, polyline, styles, speed, seed, sampler=choice)
+        raw, start, speeds = walk_paths(
+            self.model, polyline, styles, speed, seed, sampler=choice, match=match
+        )
         return to_motion(self.model, raw[0], start), float(speeds[0]) * unit
 
 
@@ -260,6 +285,8 @@ def walk(
     to: str | None = None,
     to_map: str | None = None,
     transition: float = DEFAULT_TRANSITION,
+    style_clips: str | None = None,
+    match_clips: float = MATCH_CLIPS,
 ) -> dict:
     """`walkdiff walk`: a BVH (+ a GIF of its first `preview_seconds` and a top-down plot) of the style
     walking along the path file, each frame drawn by the sampler (`SamplerChoice`); `to`: a rig to play
@@ -270,6 +297,7 @@ def walk(
     follower = PathFollower.load(ckpt)
     model = follower.model
     follower.check(style, speed)  # before the path file is read
+    match = follower.statistics(style_clips, match_clips)
     timeline = parse_timeline(model, style, transition)
     name = style if timeline is None else timeline.label
     metres, file_speed = read_path(path)
@@ -283,7 +311,9 @@ def walk(
 
     started = time.perf_counter()
     # Refused here (a path too long for memory, a style without a speed) before the folder exists.
-    motion, speed_m_s = follower.walk_along(metres, style, speed or file_speed, seed, choice, transition)
+    motion, speed_m_s = follower.walk_along(
+        metres, style, speed or file_speed, seed, choice, transition, match
+    )
     elapsed = time.perf_counter() - started
     root_xz = motion.root_positions[:, [0, 2]]
     with output_set(out):
@@ -301,6 +331,10 @@ def walk(
         manifest = {
             "checkpoint": str(ckpt),
             "style": style,
+            "style_clips": [{"clip": str(c), "weight": w} for c, w in parse_style_clips(style_clips)]
+            if style_clips
+            else [],
+            "match_clips": match_clips if style_clips else None,
             "path": str(path),
             "path_length_m": metres.length,
             "speed_m_s": speed_m_s,

@@ -41,11 +41,11 @@ from walkdiff.evaluation.scorer import WindowSet, window_set
 from walkdiff.evaluation.transfer import real_targets, transfer_baselines, transfer_row
 from walkdiff.metrics.bootstrap import Reference, interval, resample_weights
 from walkdiff.metrics.protocol import PROPORTION
+from walkdiff.models.style_examples import MATCH_CLIPS, mixed_code
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.footfix import fix_feet_features
 from walkdiff.styled.generation import Sampling
 from walkdiff.styled.pipeline import StyledGenerator
-from walkdiff.styled.style_examples import MATCH_CLIPS, mixed_code
 
 SAMPLE_METRICS = ("style_acc", "content_acc", "fmd", "kid", "skate_ratio")
 STRENGTH = 0.6  # of the unseen-style transfers

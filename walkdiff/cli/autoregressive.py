@@ -68,6 +68,14 @@ def add_walk(sub) -> None:
         help="with a --style timeline: seconds each change is ramped over (default 1)",
     )  # fmt: skip
     p.add_argument(
+        "--style-clip", dest="style_clips", default=None, metavar="FILE[:WEIGHT],...",
+        help="example BVH clips on the walker's skeleton whose posture and swing the walk takes on",
+    )  # fmt: skip
+    p.add_argument(
+        "--match-clips", type=number(0, 1), default=1.0, metavar="W",
+        help="how far the walk's pose statistics are moved to the example clips' (default 1)",
+    )  # fmt: skip
+    p.add_argument(
         "--path", required=True,
         help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}; --stream: JSON lines (- for stdin)',
     )  # fmt: skip
@@ -159,7 +167,9 @@ def run_walk(args: argparse.Namespace) -> None:
     options = keyword_options(args)
     if args.stream:
         no_rig_on_streams(options)
-        for key in ("stream", "gif", "preview_seconds", "transition"):
+        if options["style_clips"]:
+            raise WalkdiffError("--style-clip is not for --stream: walk the path whole")
+        for key in ("stream", "gif", "preview_seconds", "transition", "style_clips", "match_clips"):
             del options[key]
         walk_stream(**options)  # prints its own JSON lines
     else:

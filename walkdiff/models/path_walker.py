@@ -35,6 +35,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.diffmotion import AutoregressiveDiffusion
 from walkdiff.models.pose_mlp import PoseMLP
+from walkdiff.models.style_statistics import RunningMatch, StyleStatistics
 from walkdiff.motion.path import Polyline
 from walkdiff.motion.representation import FeatureLayout, Normalizer, root_trajectory
 from walkdiff.spec import DataSpec
@@ -251,10 +252,12 @@ class PathWalker(AutoregressiveDiffusion):
         sampler: SamplerChoice | None = None,
         fused: bool = True,
         style_at: Callable[[int], tuple[torch.Tensor, torch.Tensor]] | None = None,
+        match: StyleStatistics | None = None,
     ) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """Walk `path` once per row of `style` (B,) at `speed` (B,) units/s for `frames` frames;
         `on_frame(done, total)` is called after every frame (a progress bar). `sampler` and `fused` as
         in `DiffMotion.generate`. `style_at(frame)`: (style, speed) of each frame instead (a timeline).
+        `match`: example clips' statistics each frame is moved to (`RunningMatch`, over a second).
 
         Returns raw features (B, F, D) and the start pose (x, z), heading to decode them with.
         """
@@ -265,7 +268,10 @@ class PathWalker(AutoregressiveDiffusion):
         progress = np.zeros(rows)
         pace = self.pace(speed)
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
-        streams = self.start_streams(rows, sampler, fused)
+        streams = self.start_streams(rows, sampler, fused and match is None)
+        if match is not None:
+            last = streams.tables.steps.timesteps[-1]
+            streams.tables.guide = RunningMatch(match, round(self.spec["fps"]), self.diffusion, last)
         poses = torch.zeros(rows, frames, dim, device=self.device)
         style = style.to(self.device)
         for f in range(frames):

@@ -3,7 +3,14 @@ skeleton of the files it was trained on, and its clips handed back as `Take`s on
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.models.base import MotionModule
+from walkdiff.motion.bvh import read_bvh
+from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion, Skeleton
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
@@ -31,3 +38,29 @@ class Pipeline:
         by `rig` on its own."""
         take = Take.from_canonical(motion, self.model.profile)
         return take if rig is None else take.retarget(rig)
+
+    def source(self, motion: Motion | Take | str | os.PathLike, what: str = "transfer") -> Motion:
+        """A clip to restyle or take a style from, as the model takes it: checked to be on its skeleton,
+        canonical, at its fps. `what` names the option in errors."""
+        path = None
+        if isinstance(motion, Take):
+            motion = motion.motion
+        elif isinstance(motion, str | os.PathLike):
+            path = Path(motion)
+            motion = read_bvh(path)
+        elif not isinstance(motion, Motion):
+            raise WalkdiffError(
+                f"{what}: expected a Motion, a Take or the path of a BVH file, got {type(motion).__name__}"
+            )
+        self.model.profile.check(motion.skeleton, path)
+        motion = self.model.profile.to_canonical(motion)
+        if abs(motion.fps - self.fps) > 1e-3 * self.fps:
+            motion = resample(motion, self.fps)
+        check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
+        if motion.num_frames < 2:  # one pose: no motion, and the root velocities it is made of are 0
+            raise WalkdiffError(
+                f"{motion.num_frames} frame at the model's {self.fps:g} fps: expected at least 2 frames of "
+                "motion",
+                path=path,
+            )
+        return motion

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from walkdiff.common.files import check_free, output_folder, output_set, write_json
+from walkdiff.models.style_examples import MATCH_CLIPS
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, plot_timeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -25,7 +26,6 @@ from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 from walkdiff.styled.generation import Sampling, noised_steps
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
-from walkdiff.styled.style_examples import MATCH_CLIPS
 
 
 def _write_clip(

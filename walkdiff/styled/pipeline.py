@@ -7,7 +7,6 @@ seed and settings. The windows, samplers and transfer themselves are in styled/g
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 from dataclasses import dataclass, replace
@@ -19,12 +18,19 @@ import torch
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
 from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.style_examples import (
+    MATCH_CLIPS,
+    StyleExample,
+    check_match_clips,
+    example_windows,
+    label_code,
+    mixed_code,
+    parse_style_clips,
+)
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_style, parse_timeline
 from walkdiff.models.style_statistics import StyleStatistics
-from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.footfix import fix_feet as pinned_feet
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
-from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
@@ -35,14 +41,6 @@ from walkdiff.styled.generation import (
     noised_steps,
     resolve_windows,
     restyle,
-)
-from walkdiff.styled.style_examples import (
-    MATCH_CLIPS,
-    StyleExample,
-    example_windows,
-    label_code,
-    mixed_code,
-    parse_style_clips,
 )
 
 
@@ -204,10 +202,7 @@ class StyledGenerator(Pipeline):
         """The labels and windows of a sample or transfer, or a WalkdiffError naming what is wrong. Example
         clips give their code, and their statistics matched at `match_clips` times their share of the
         weight (a --style label weighs 1)."""
-        if not (math.isfinite(match_clips) and 0 <= match_clips <= 1):
-            raise WalkdiffError(
-                f"--match-clips must be in [0, 1] (0: the clips' code alone), got {match_clips:g}"
-            )
+        check_match_clips(match_clips)
         if style is None and not style_clips:
             raise WalkdiffError("no style given: pass --style NAME[,...], --style-clip FILE[,...] or both")
         content_id = self.model.label_ids([content], "content")[0]
@@ -246,7 +241,7 @@ class StyledGenerator(Pipeline):
         weighted, statistics, examples = [], [], []
         for clip, weight in parse_style_clips(style_clips):
             where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
-            windows = example_windows(self.model, self.source(clip), where)
+            windows = example_windows(self.model, self.source(clip, "--style-clip"), where)
             code = self.model.style_code(windows)
             weighted.append((code, weight))
             statistics.append((StyleStatistics.of(windows), weight))
@@ -265,31 +260,6 @@ class StyledGenerator(Pipeline):
                 f"--style {', '.join(missing)}: this model has no code for it (no training clip of that "
                 "style, or data.leave_out_styles left it out); give an example clip: --style-clip FILE"
             )
-
-    def source(self, motion: Motion | Take | str | os.PathLike) -> Motion:
-        """A clip to restyle as the model takes it: checked to be on its skeleton, canonical, at its fps."""
-        path = None
-        if isinstance(motion, Take):
-            motion = motion.motion
-        elif isinstance(motion, str | os.PathLike):
-            path = Path(motion)
-            motion = read_bvh(path)
-        elif not isinstance(motion, Motion):
-            raise WalkdiffError(
-                f"transfer: expected a Motion, a Take or the path of a BVH file, got {type(motion).__name__}"
-            )
-        self.model.profile.check(motion.skeleton, path)
-        motion = self.model.profile.to_canonical(motion)
-        if abs(motion.fps - self.fps) > 1e-3 * self.fps:
-            motion = resample(motion, self.fps)
-        check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
-        if motion.num_frames < 2:  # one pose: no motion, and the root velocities it is made of are 0
-            raise WalkdiffError(
-                f"{motion.num_frames} frame at the model's {self.fps:g} fps: expected at least 2 frames of "
-                "motion to restyle",
-                path=path,
-            )
-        return motion
 
     def window_note(self, source: Motion, where: str | os.PathLike) -> str | None:
         """What a transfer of a clip shorter than the model's window should say: it is restyled as one

@@ -40,6 +40,12 @@ class StyleExample:
         return {"clip": self.source, "weight": self.weight, "code": [round(c, 5) for c in self.code]}
 
 
+def check_match_clips(value: float) -> None:
+    """--match-clips is a share in [0, 1]."""
+    if not (np.isfinite(value) and 0 <= value <= 1):
+        raise WalkdiffError(f"--match-clips must be in [0, 1] (0: the clips' code alone), got {value:g}")
+
+
 def parse_style_clips(text: str | list) -> list[tuple[str | Motion, float]]:
     """'a.bvh:0.7,b.bvh' (or a list of paths, Motions, or (clip, weight) pairs) -> [(clip, weight)]."""
     items = text.split(",") if isinstance(text, str) else list(text)
