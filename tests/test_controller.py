@@ -561,3 +561,45 @@ def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_
     lock.apply(raw, far[None], np.array([0.3]))
     dragged = np.linalg.norm(heel_at(raw, far) - heel_at(pose, far))
     assert dragged == pytest.approx(MAX_OFFSET * leg, rel=1e-6)
+
+
+def test_the_foot_lock_lifts_a_free_foot_that_skims_the_floor_and_lets_it_down_gently(ckpt):
+    """Feet that have landed, then move along the ground faster than a planted foot may without the
+    walker's contacts: each is raised until its lower joint is a contact height above where it landed;
+    standing still again, the lift falls by LIFT_FADE a frame."""
+    from walkdiff.autoregressive.foot_lock import LIFT_FADE, FootLock
+    from walkdiff.motion.representation import features_to_positions
+
+    model = load_walker(ckpt)
+    skeleton, spec, layout = model.skeleton, model.profile.contacts, model.layout
+    offsets = torch.from_numpy(skeleton.offsets).double()
+    joints = [skeleton.index(name) for name in spec.joints]
+    lock = FootLock(model, 1)
+    pose = model.normalizer.mean.double().numpy()[None].copy()
+
+    def heights(raw, position):
+        world = features_to_positions(torch.from_numpy(raw), offsets, skeleton.parents, position, 0.0)
+        return world[0, joints, 1].numpy()
+
+    def step(contacts, position, up=0.0):
+        raw = pose.copy()
+        raw[:, layout.contacts] = contacts
+        raw[:, layout.root_height] += up
+        lock.apply(raw, position[None], np.array([0.0]))
+        return raw
+
+    origin = np.zeros(2)
+    landed = heights(step([1.0] * 4, origin), origin)  # both feet land where the pose puts them
+    step([0.0] * 4, origin, up=1.5 * spec.height_threshold)  # and lift off: free again
+    fast = 2 * spec.speed_threshold / model.spec["fps"]  # twice a planted foot's speed, a frame
+    position = origin.copy()
+    for _ in range(3):
+        position = position + [0.0, fast]
+        raw = step([0.0] * 4, position)
+    raised = heights(raw, position)
+    for side in (slice(0, 2), slice(2, 4)):  # each foot's lower joint a contact height above its landing
+        gaps = raised[side] - landed[side]
+        assert gaps.min() == pytest.approx(spec.height_threshold, rel=1e-4)
+    lift = raised - heights(pose, position)
+    raw = step([0.0] * 4, position)  # standing still: no longer skimming
+    np.testing.assert_allclose(heights(raw, position) - heights(pose, position), LIFT_FADE * lift, atol=1e-4)
