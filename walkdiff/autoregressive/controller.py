@@ -22,7 +22,8 @@ the command instead of from a path, every frame, from where the walker is:
   stand and stays there. Without pace the points have no direction: it turns again once it walks.
 - **Heading assist**: each frame's root is turned a little further towards the commanded direction, at
   most `heading_assist` degrees/s (`assist`); **foot lock**: planted feet held where they landed
-  (`foot_lock.FootLock`). Both change only the frame shown and kept, never what the walker feeds back.
+  (`foot_lock.FootLock`), and free feet that skim the floor lifted clear of it. Both change only the
+  frame shown and kept, never what the walker feeds back.
 - **Speed and style** act on the next frame: the pace at once, the style embedding (a name, a mix
   'angry:0.7,old:0.3' or mixing weights) ramped linearly over `transition` seconds (`TRANSITION`; 0: at
   once, which a walker whose denoiser reads the style itself shows as a jolt). With no
@@ -59,7 +60,7 @@ TURN_RATE = 720.0  # degrees per second the control's path bends at towards a ne
 MAX_AIM = math.pi / 2  # the control never aims further off the heading than this (no walking backwards)
 HEADING_ASSIST = 45.0  # degrees per second the root may be turned beyond the walker's own turn
 ASSIST_TIME = 0.25  # seconds: the time constant of that correction
-DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 7.0 ms a frame on 2 cores, lock included (live-control.md)
+DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 8.3 ms a frame on 2 cores, lock included (live-control.md)
 
 
 @dataclass(frozen=True)

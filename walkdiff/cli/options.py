@@ -55,7 +55,8 @@ def steering_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument(
         "--no-foot-lock", dest="foot_lock", action="store_false",
-        help="leave the feet where the walker puts them (default: a planted foot is held where it landed)",
+        help="leave the feet where the walker puts them (default: a planted foot is held where it landed, "
+        "a free one skimming the floor lifted clear of it)",
     )  # fmt: skip
 
 
