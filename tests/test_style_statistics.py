@@ -120,6 +120,35 @@ def coded_features(generator, take) -> np.ndarray:
     return encode(generator.source(take), generator.model.profile)
 
 
+def test_an_example_clip_of_each_seen_style_gives_that_style(xia_tiny, xia_dir):
+    """On real Xia: windows sampled from a clip of each style the model has seen (neutral, old) are
+    nearer, in pose statistics, to other clips of that style than to clips of the other style; the
+    reference clips are not the examples."""
+    coded = walkdiff.load(xia_tiny["style_codes"])
+    model = coded.model
+    pose = FeatureLayout(model.skeleton.num_joints).rotations
+
+    def statistics_of(names: list[str]) -> StyleStatistics:
+        clips = [str(xia_dir / n) for n in names]
+        return StyleStatistics.mixed([(coded_statistics(coded, c), 1.0) for c in clips], 1.0)
+
+    references = {s: statistics_of([f"{s}_{c:02d}_000.bvh" for c in (3, 5, 6)]) for s in ("neutral", "old")}
+    for style, other in (("neutral", "old"), ("old", "neutral")):
+        takes = coded.sample(
+            style_clips=str(xia_dir / f"{style}_04_000.bvh"), num=4, frames=24, seed=5, **FAST
+        )
+        made = torch.stack(
+            [model.normalizer.normalize(torch.from_numpy(coded_features(coded, t))) for t in takes]
+        )
+        mean = made.mean(dim=(0, 1))[pose]
+        own, others = (float((mean - references[s].mean[pose]).norm()) for s in (style, other))
+        assert own < others, (style, own, others)
+
+
+def coded_statistics(generator, clip: str) -> StyleStatistics:
+    return StyleStatistics.of(example_windows(generator.model, generator.source(clip), clip))
+
+
 # ---------------------------------------------------------------- frame by frame: the path walker
 
 
