@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from walkdiff.bench.gesture import bench_gesture
 from walkdiff.bench.measure import report
 
@@ -33,3 +35,13 @@ def test_gesture_benchmark_reports_seconds_per_frame(tmp_path):
     assert set(saved["frames_per_second_batched"]) == {"2", "3"} and saved["sampler_batched"] == "dpmpp-3"
     assert saved["realtime_streams"] in (0, 2, 3) and saved["lstm_step_ms"]["addmm"] > 0
     assert saved["machine"]["torch_threads"] >= 1
+
+
+def test_the_seam_share_interval_is_wilsons():
+    from walkdiff.bench.play import wilson
+
+    assert wilson(0, 10) == pytest.approx([0.0, 0.2775], abs=1e-4)
+    assert wilson(5, 10) == pytest.approx([0.2366, 0.7634], abs=1e-4)
+    low, high = wilson(2, 48)  # 2 of 48 switches above the p95: the share is well under the 10% bar
+    assert low < 2 / 48 < high < 0.15
+    assert wilson(0, 0) == [0.0, 1.0]

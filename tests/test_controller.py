@@ -296,7 +296,13 @@ def test_keys_steer_speed_style_and_recording():
     assert keys.speed == 0
     keys.key("3")
     keys.key("r")
-    assert keys.state() == {"direction": -45.0, "speed": 0.0, "style": "old", "recording": False}
+    assert keys.state() == {
+        "direction": -45.0,
+        "speed": 0.0,
+        "style": "old",
+        "style_clips": None,
+        "recording": False,
+    }
     with pytest.raises(WalkdiffError, match="key 'q': expected ArrowLeft"):
         keys.key("q")
     with pytest.raises(WalkdiffError, match="key 9: the model has 3 styles"):
@@ -476,7 +482,8 @@ def numbers(tree) -> list:
 def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tmp_path, capsys):
     out = tmp_path / "play.json"
     argv = ["bench", "play", "--ckpt", str(ckpt), "--evaluator", str(evaluator), "--out", str(out), "--seeds",
-            "1", "--hold", "2", "--steps", "2", "--characters", "1,2", "--frames", "3"]  # fmt: skip
+            "1", "--switch-seeds", "2", "--hold", "2", "--steps", "2", "--characters", "1,2",
+            "--frames", "3"]  # fmt: skip
     assert main(argv) == 0
     result = json.loads(out.read_text())
     printed = capsys.readouterr().out
@@ -485,7 +492,10 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
         assert section in result, section
     assert "machine" in result and "page_open_s" in result["page"] and result["page"].get("bones_drawn", 1)
     assert all(math.isfinite(x) for x in numbers(result))
-    assert result["styles"] == ["neutral", "old"] and result["seams"]["switches"] == 2
+    assert result["styles"] == ["neutral", "old"] and result["seams"]["switches"] == 4  # 2 a tour, 2 seeds
+    low, high = result["seams"]["share_interval_95"]
+    assert low <= result["seams"]["share_above_p95"] <= high and high - low > 0.3  # 4 switches say little
+    assert result["seams"]["switched_at_once"]["switches"] == 4
     assert {"turn", "speed", "stop"} == set(result["latency"]["by_kind"])
     assert len(result["latency"]["commands"]) == 9 and result["latency"]["median_ms"] > 0
     assert set(result["following"]["heading_error_deg"]) == {"straight", "turn_45", "turn_90", "turn_180"}

@@ -15,7 +15,7 @@ import torch
 import walkdiff
 from walkdiff.cli.main import main
 from walkdiff.diffusion.gaussian import GaussianDiffusion
-from walkdiff.models.style_examples import example_windows
+from walkdiff.models.style_examples import clip_statistics, example_windows
 from walkdiff.models.style_statistics import MAX_SCALE, RunningMatch, StyleStatistics, matched_channels
 from walkdiff.motion.representation import FeatureLayout, encode
 from walkdiff.styled import commands
@@ -177,7 +177,7 @@ def test_walk_takes_an_example_clip_and_records_it(xia_tiny, xia_dir, zeggs_dir,
     --style-clip with --stream."""
     follower = walkdiff.load(xia_tiny["walker"])
     clip = str(xia_dir / "old_02_000.bvh")
-    target = follower.statistics(clip)
+    target = clip_statistics(follower.model, clip)
     pose = FeatureLayout(follower.model.skeleton.num_joints).rotations
     options = dict(seed=2, sampler="ddim", steps=2)
 

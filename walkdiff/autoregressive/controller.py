@@ -39,7 +39,8 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -49,7 +50,9 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root
 from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, parse_style_clips
 from walkdiff.models.style_labels import parse_style
+from walkdiff.models.style_statistics import RunningMatch, StyleStatistics
 from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
@@ -81,6 +84,25 @@ class Pose:
     root: np.ndarray
     heading: float
     translation: np.ndarray
+
+
+@dataclass(frozen=True)
+class Ramp:
+    """A change ramped linearly over `frames` frames, `done` of them made: style weights, or example
+    clips' statistics."""
+
+    start: object
+    end: object
+    done: int = 0
+    frames: int = 0
+
+    @property
+    def share(self) -> float:
+        """How far along the next frame is (1: arrived)."""
+        return 1.0 if self.done >= self.frames else (self.done + 1) / self.frames
+
+    def next(self) -> Ramp:
+        return replace(self, done=min(self.done + 1, self.frames))
 
 
 def angle_of(direction, what: str = "direction") -> float:
@@ -187,6 +209,8 @@ class WalkController:
     `style`: where each character starts (name, mix or weights); `speed`: m/s (None: the style's own);
     `positions` (N, 2) in metres and `headings` (N,) in degrees: where the characters start (default: the
     origin, facing +z). `record`: keep the frames for `take` (False: keep nothing, for endless use).
+    `style_clips`: example clips ('a.bvh:0.7,b.bvh', paths, Motions or (clip, weight) pairs) whose pose
+    statistics every character takes on as well, at `match_clips` (`RunningMatch`; docs/walking.md).
     """
 
     def __init__(
@@ -204,6 +228,8 @@ class WalkController:
         positions=None,
         headings=None,
         record: bool = True,
+        style_clips=None,
+        match_clips: float = MATCH_CLIPS,
     ):
         if not (isinstance(characters, int) and characters >= 1):
             raise WalkdiffError(f"characters: expected a whole number >= 1, got {characters!r}")
@@ -233,8 +259,16 @@ class WalkController:
         self.speed: list[float | None] = [None] * characters  # m/s; None: the style's own
         weights, label = style_weights(model, style)
         self.weights = weights[None].repeat(characters, 1)  # the conditioning now (N, S)
-        self.ramp = [(weights, weights, 0, 0)] * characters  # (from, to, frames done, frames in all)
+        self.ramp = [Ramp(weights, weights)] * characters
         self.labels = [label] * characters
+        self.match_clips, self.guide = match_clips, None
+        self.matching: list[Ramp] = []  # example clips' statistics per character, once any are given
+        self.matched: list[StyleStatistics] = []  # ... and those of the last frame
+        self.clips: list[list[dict]] = [[] for _ in range(characters)]  # each character's clips, as recorded
+        if style_clips:
+            self.command(style_clips=style_clips)
+            self.matching = [Ramp(r.end, r.end) for r in self.matching]  # from the first frame, no ramp
+        self.start_clips = self.clips[0]  # what the characters started with (manifests)
         self.frame = 0
         # Per frame kept for `take`: the frame, its raw features (N, D), the root (N, 2) and heading (N,).
         self.kept: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
@@ -270,29 +304,37 @@ class WalkController:
             "direction": round(math.degrees(self.target[character]), 4),
             "speed": round(self._speed(character), 4),
             "style": self.labels[character],
-        }
+        } | ({"style_clips": self.clips[character]} if self.clips[character] else {})
 
     # ------------------------------------------------------------ commands
 
-    def command(self, direction=None, speed=None, style=None, character: int | None = None) -> None:
+    def command(
+        self, direction=None, speed=None, style=None, character: int | None = None, style_clips=None
+    ) -> None:
         """Change what `character` (None: every one) does from the next frame on; None keeps a field.
         `direction`: (x, z) or an angle in degrees (0: +z, 90: +x); `speed`: m/s, 0 stops; `style`: a
-        name, a mix or weights."""
+        name, a mix or weights; `style_clips`: example clips (as the constructor's; "" or []: none),
+        ramped in and out as a style is."""
         rows = range(self.characters) if character is None else [self._character(character)]
         angle = None if direction is None else angle_of(direction)
         value = None if speed is None else checked_speed(speed)
         weights = None if style is None else style_weights(self.model, style)
+        matched = None if style_clips is None else self._statistics(style_clips)
         for k in rows:  # checked first: a refused command changes nothing
             own = (value if speed is not None else self.speed[k]) is None
-            target, label = weights if weights is not None else (self.ramp[k][1], self.labels[k])
+            target, label = weights if weights is not None else (self.ramp[k].end, self.labels[k])
             if own and not self.style_speed(target) > 0:
                 raise WalkdiffError(
                     f"style {label}: the checkpoint has no walking speed for it; give a speed"
                 )
+        frames = round(self.transition * self.fps)
         for k in rows:
             if weights is not None:
-                self.ramp[k] = (self.weights[k].clone(), weights[0], 0, round(self.transition * self.fps))
+                self.ramp[k] = Ramp(self.weights[k].clone(), weights[0], 0, frames)
                 self.labels[k] = weights[1]
+            if matched is not None and self.guide is not None:  # (no clips to drop before the first)
+                statistics, self.clips[k] = matched
+                self.matching[k] = Ramp(self.matched[k], statistics, 0, frames)
             if angle is not None:
                 self.target[k] = angle
             if value is not None:
@@ -310,10 +352,13 @@ class WalkController:
     @torch.inference_mode()
     def advance(self) -> list[Pose]:
         """One frame of every character under its current command: a Pose each."""
-        for k, (start, end, done, frames) in enumerate(self.ramp):
-            share = 1.0 if done >= frames else (done + 1) / frames
-            self.weights[k] = start + share * (end - start)
-            self.ramp[k] = (start, end, min(done + 1, frames), frames)
+        for k, ramp in enumerate(self.ramp):
+            self.weights[k] = ramp.start + ramp.share * (ramp.end - ramp.start)
+            self.ramp[k] = ramp.next()
+        if self.guide is not None:
+            self.matched = [ramp.start.towards(ramp.end, ramp.share) for ramp in self.matching]
+            self.matching = [ramp.next() for ramp in self.matching]
+            self.guide.target = StyleStatistics.stack(self.matched)
         speed = np.array([self._speed(k) for k in range(self.characters)]) / self.unit
         control = command_control(self.heading, self.target, speed, self.times, self.turn_rate)
         model = self.model
@@ -401,7 +446,32 @@ class WalkController:
         other.speed, other.ramp, other.labels = list(self.speed), list(self.ramp), list(self.labels)
         other.weights, other.kept = self.weights.clone(), list(self.kept)
         other.lock = None if self.lock is None else self.lock.copy()
+        other.matching, other.matched, other.clips = list(self.matching), list(self.matched), list(self.clips)
+        if self.guide is not None:  # its running statistics are the fork's own from here on
+            other.streams.tables = copy.copy(self.streams.tables)
+            other.guide = other.streams.tables.guide = copy.copy(self.guide)
         return other
+
+    # ------------------------------------------------------------ example clips
+
+    def _statistics(self, style_clips) -> tuple[StyleStatistics, list[dict]]:
+        """Example clips' statistics and their record ("" or []: none, matched at strength 0); the first
+        clips given start matching every frame of every character (a `RunningMatch`)."""
+        statistics = clip_statistics(self.model, style_clips, self.match_clips)
+        if statistics is None:
+            dim = self.model.spec["feature_dim"]
+            return StyleStatistics(torch.zeros(dim), torch.ones(dim), torch.zeros(())), []
+        if self.guide is None:
+            off = StyleStatistics(statistics.mean, statistics.spread, torch.zeros(()))
+            self.matching, self.matched = [Ramp(off, off)] * self.characters, [off] * self.characters
+            tables = self.streams.tables
+            if tables.fused is not None:  # the fused network takes no guide
+                tables = self.streams.tables = self.model.sampling_tables(self.sampler, fused=False)
+            self.guide = RunningMatch(off, round(self.fps), self.model.diffusion, tables.steps.timesteps[-1])
+            tables.guide = self.guide
+        clips = [{"clip": str(c) if isinstance(c, str | os.PathLike) else "a Motion", "weight": w}
+                 for c, w in parse_style_clips(style_clips)]  # fmt: skip
+        return statistics, clips
 
     # ------------------------------------------------------------ checks
 

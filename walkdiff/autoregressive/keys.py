@@ -48,6 +48,7 @@ class KeyControl:
         self.style, self.speed, self.direction, self.recording = style, speed, float(direction), recording
         self.turn_rate, self.speed_step, self.top_speed = turn_rate, speed_step, top_speed
         self.held: set[str] = set()
+        self.style_clips: str | list | None = None  # example clips commanded (None: as the walker started)
 
     def key(self, key: str, down: bool = True) -> None:
         """A key pressed (`down`) or released; an unknown key is a WalkdiffError naming the known ones."""
@@ -74,14 +75,20 @@ class KeyControl:
         else:
             raise self._unknown(key)
 
-    def command(self, direction: float | None = None, speed: float | None = None, style: str | None = None):
-        """A direct command: a direction in degrees, a speed in m/s, a style; None keeps a field."""
+    def command(
+        self, direction: float | None = None, speed: float | None = None, style: str | None = None,
+        style_clips: str | list | None = None,
+    ):  # fmt: skip
+        """A direct command: a direction in degrees, a speed in m/s, a style, example clips ("": none);
+        None keeps a field."""
         if direction is not None:
             self.direction = float(direction)
         if speed is not None:
             self.speed = float(speed)
         if style is not None:
             self.style = style
+        if style_clips is not None:
+            self.style_clips = style_clips
 
     def tick(self, seconds: float) -> None:
         """Time passes with the keys held as they are: the turning keys turn the direction."""
@@ -96,6 +103,7 @@ class KeyControl:
             "direction": self.direction,
             "speed": self.speed,
             "style": self.style,
+            "style_clips": self.style_clips,
             "recording": self.recording,
         }
 

@@ -35,7 +35,7 @@ from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.resample import resample
 from walkdiff.motion.take import Take
 
-COMMANDS = ("direction", "speed", "style")
+COMMANDS = ("direction", "speed", "style", "style_clips")
 CONTROL_FIELDS = (*COMMANDS, "character", "frames", "record")
 SCRIPT_FIELDS = ("t", "key", "down", *COMMANDS)
 MOST_FRAMES_A_LINE = 100_000  # about 55 minutes at 30 fps
@@ -43,13 +43,15 @@ MOST_FRAMES_A_LINE = 100_000  # about 55 minutes at 30 fps
 
 @contextmanager
 def at_line(where: str, line: int | None) -> Iterator[None]:
-    """Errors raised inside name `where` and `line` (unless they name a place already)."""
+    """Errors raised inside name `where` and `line`, before the file they name if another (a clip the
+    line asked for)."""
     try:
         yield
     except WalkdiffError as error:
-        if error.path is not None or line is None:
+        if line is None or (error.path is not None and str(error.path) == where):
             raise
-        raise WalkdiffError(error.reason, path=where, line=line) from None
+        reason = error.reason if error.path is None else str(error)
+        raise WalkdiffError(reason, path=where, line=line) from None
 
 
 def json_object(text: bytes | str, where: str, line: int, expected: str) -> dict | None:
@@ -89,6 +91,15 @@ def command_of(data: dict, model, where: str, line: int) -> dict:
                 )
             style_weights(model, data["style"])
             command["style"] = data["style"]
+        if "style_clips" in data:  # read when applied: a bad clip names this line then
+            clips = data["style_clips"]
+            listed = isinstance(clips, list) and all(isinstance(c, str) for c in clips)
+            if not (isinstance(clips, str) or listed):
+                raise WalkdiffError(
+                    f"style_clips: expected 'a.bvh:0.7,b.bvh', a list of BVH paths or \"\" (none), "
+                    f"got {clips!r}"
+                )
+            command["style_clips"] = clips
         return command
 
 
@@ -131,6 +142,8 @@ def settings(ckpt, walker: WalkController, style, speed, seed, fps=None) -> dict
         "written_fps": fps or walker.fps, "characters": walker.characters,
         "transition_s": walker.transition, "turn_rate_deg_s": math.degrees(walker.turn_rate),
         "heading_assist_deg_s": math.degrees(walker.heading_assist), "foot_lock": walker.lock is not None,
+        "style_clips": walker.start_clips or None,
+        "match_clips": walker.match_clips if walker.guide is not None else None,
     }  # fmt: skip
 
 

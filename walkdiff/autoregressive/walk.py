@@ -21,7 +21,7 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.pipeline import Pipeline
-from walkdiff.models.style_examples import MATCH_CLIPS, check_match_clips, example_windows, parse_style_clips
+from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, parse_style_clips
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.bvh import write_bvh
@@ -53,7 +53,7 @@ def walk_paths(
     """Raw features (B, F, D), the start pose, and the speeds used (B,): one walk per style id (or one walk
     of a `StyleTimeline`), each frame drawn by `sampler` (default DDPM); refused before any work where
     the path is too long for memory, with a progress bar over the frames. `match`: example clips'
-    statistics every walk is moved to (`PathFollower.statistics`)."""
+    statistics every walk is moved to (`clip_statistics`)."""
     style_at, timeline = None, styles if isinstance(styles, StyleTimeline) else None
     style = torch.tensor(styles) if timeline is None else timeline.at(0.0)[None]
     known = model.style_speed.cpu()
@@ -128,7 +128,7 @@ class PathFollower(Pipeline):
         pose statistics the walk takes on as well, at `match_clips` (docs/walking.md)."""
         choice = SamplerChoice(sampler, steps, eta)
         rig = TargetRig.of(to)
-        match = self.statistics(style_clips, match_clips)
+        match = clip_statistics(self.model, style_clips, match_clips)
         metres, file_speed = path_in_metres(path)
         speed = file_speed if speed is None else speed
         motion, _ = self.walk_along(metres, style, speed, seed, choice, transition, match)
@@ -152,20 +152,6 @@ class PathFollower(Pipeline):
         from walkdiff.autoregressive.controller import controller
 
         return controller(self.model, style, speed, seed, sampler, steps, eta, characters, **options)
-
-    def statistics(self, style_clips, match_clips: float = MATCH_CLIPS) -> StyleStatistics | None:
-        """The example clips' statistics ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip,
-        weight) pairs), weighted, matched at `match_clips`; None without clips. The walker has no style
-        encoder: its style is still the label's, the clips give the walk their posture and swing."""
-        if not style_clips:
-            return None
-        check_match_clips(match_clips)
-        weighted = []
-        for clip, weight in parse_style_clips(style_clips):
-            where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
-            windows = example_windows(self.model, self.source(clip, "--style-clip"), where)
-            weighted.append((StyleStatistics.of(windows), weight))
-        return StyleStatistics.mixed(weighted, match_clips)
 
     def check(self, style: str, speed: float | None) -> int:
         """The style's index (-1 for a timeline), once the style and the speed (m/s, None: the style's
@@ -297,7 +283,7 @@ def walk(
     follower = PathFollower.load(ckpt)
     model = follower.model
     follower.check(style, speed)  # before the path file is read
-    match = follower.statistics(style_clips, match_clips)
+    match = clip_statistics(follower.model, style_clips, match_clips)
     timeline = parse_timeline(model, style, transition)
     name = style if timeline is None else timeline.label
     metres, file_speed = read_path(path)

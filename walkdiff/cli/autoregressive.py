@@ -6,7 +6,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import PREVIEW_HELP, frame_sampler_options, keyword_options, rig_options
+from walkdiff.cli.options import (
+    PREVIEW_HELP,
+    frame_sampler_options,
+    keyword_options,
+    rig_options,
+    walker_clip_options,
+)
 from walkdiff.common.arguments import count, number
 from walkdiff.common.errors import WalkdiffError
 
@@ -67,14 +73,7 @@ def add_walk(sub) -> None:
         "--transition", type=number(0), default=1.0,
         help="with a --style timeline: seconds each change is ramped over (default 1)",
     )  # fmt: skip
-    p.add_argument(
-        "--style-clip", dest="style_clips", default=None, metavar="FILE[:WEIGHT],...",
-        help="example BVH clips on the walker's skeleton whose posture and swing the walk takes on",
-    )  # fmt: skip
-    p.add_argument(
-        "--match-clips", type=number(0, 1), default=1.0, metavar="W",
-        help="how far the walk's pose statistics are moved to the example clips' (default 1)",
-    )  # fmt: skip
+    walker_clip_options(p)
     p.add_argument(
         "--path", required=True,
         help='JSON: [[x, z], ...] or {"points": [...], "speed": units/s}; --stream: JSON lines (- for stdin)',

@@ -385,6 +385,10 @@ def add_play(bench) -> None:
         "--seeds", type=count(1), default=2, help="seeds each scripted take is walked with (default 2)"
     )
     b.add_argument(
+        "--switch-seeds", type=count(1), default=6,
+        help="seeds the style tour is walked with, for the seams at its switches (default 6)",
+    )  # fmt: skip
+    b.add_argument(
         "--hold", type=number(2), default=3.0, help="seconds between a take's commands (default 3)"
     )
     b.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="per-frame sampler (default ddim)")
@@ -406,7 +410,8 @@ def run_play(args: argparse.Namespace) -> None:
     bench_play(
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
         args.transition, frame_counts(args.characters, "--characters"), args.frames,
-        turn_rate=args.turn_rate, heading_assist=args.heading_assist, foot_lock=args.foot_lock,
+        switch_seeds=args.switch_seeds, turn_rate=args.turn_rate, heading_assist=args.heading_assist,
+        foot_lock=args.foot_lock,
     )  # fmt: skip
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, keyword_options, steering_options
+from walkdiff.cli.options import SAMPLERS, keyword_options, steering_options, walker_clip_options
 from walkdiff.common.arguments import count, number
 
 
@@ -26,6 +26,7 @@ def walker_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--speed", type=number(0), default=None, help="m/s at the start (default: the style's own speed)"
     )
+    walker_clip_options(p)
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument(
         "--sampler", choices=SAMPLERS, default="ddim",

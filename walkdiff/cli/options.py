@@ -60,6 +60,19 @@ def steering_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def walker_clip_options(p: argparse.ArgumentParser) -> None:
+    """--style-clip and --match-clips of a path walker (`walk`, `play`, `control`): example clips whose pose
+    statistics the walker takes on; its style is still the --style label's."""
+    p.add_argument(
+        "--style-clip", dest="style_clips", default=None, metavar="FILE[:WEIGHT],...",
+        help="example BVH clips on the walker's skeleton whose posture and swing the walk takes on",
+    )  # fmt: skip
+    p.add_argument(
+        "--match-clips", type=number(0, 1), default=1.0, metavar="W",
+        help="how far the walk's pose statistics are moved to the example clips' (default 1)",
+    )  # fmt: skip
+
+
 def keyword_options(args: argparse.Namespace) -> dict:
     """The parsed options as keyword arguments of the function a command runs: all but the command's name."""
     return {key: value for key, value in vars(args).items() if key not in ("command", "what")}

@@ -20,6 +20,8 @@ import torch
 import torch.nn.functional as F
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.representation import encode
 from walkdiff.motion.skeleton import Motion
 
@@ -99,3 +101,18 @@ def mixed_code(weighted: list[tuple[torch.Tensor, float]]) -> torch.Tensor:
 def label_code(model, style: torch.Tensor) -> torch.Tensor:
     """The stored code (code_dim,) of a style id or mixing weights (what sampling by label uses)."""
     return model.ema.module.style.as_codes(style[None])[0]
+
+
+def clip_statistics(model, style_clips, match_clips: float = MATCH_CLIPS) -> StyleStatistics | None:
+    """The example clips' pose statistics ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip,
+    weight) pairs), weighted, matched at `match_clips`; None without clips. For a model with no style
+    encoder (the path walker) the clips give posture and swing, its style is still the label's."""
+    if not style_clips:
+        return None
+    check_match_clips(match_clips)
+    weighted = []
+    for clip, weight in parse_style_clips(style_clips):
+        where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
+        windows = example_windows(model, Pipeline(model).source(clip, "--style-clip"), where)
+        weighted.append((StyleStatistics.of(windows), weight))
+    return StyleStatistics.mixed(weighted, match_clips)

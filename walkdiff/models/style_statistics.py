@@ -16,7 +16,7 @@ normalised features, taken per window of the model and averaged over the example
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -82,6 +82,17 @@ class StyleStatistics:
             *(torch.stack([getattr(s, name) for s in each]) for name in ("mean", "spread", "strength"))
         )
 
+    def towards(self, other: StyleStatistics, share: float) -> StyleStatistics:
+        """`share` of the way from these to `other` (variances and strengths interpolated): a style ramp.
+        A side matched at strength 0 has no statistics to leave or reach, so only the strength ramps."""
+        start = self if float(self.strength) > 0 else replace(other, strength=self.strength)
+        end = other if float(other.strength) > 0 else replace(self, strength=other.strength)
+        return StyleStatistics(
+            start.mean + share * (end.mean - start.mean),
+            (start.spread.square() + share * (end.spread.square() - start.spread.square())).sqrt(),
+            start.strength + share * (end.strength - start.strength),
+        )
+
     def rows(self, start: int, stop: int) -> StyleStatistics:
         """The statistics of samples [start, stop) of a batch's."""
         return StyleStatistics(self.mean[start:stop], self.spread[start:stop], self.strength[start:stop])
@@ -112,7 +123,8 @@ class RunningMatch:
     to take a mean and a spread over, so its own recent frames stand in, a running mean and variance of
     the network's clean frames over about `span` frames (before they are moved: the moves do not feed
     the statistics they are measured by). Each row of a batch keeps its own. The root's speed is left to
-    the path and the commanded pace."""
+    the path and the commanded pace. `target` may be one statistics for every row, or one per row (B, D)
+    with strengths (B,), and may be replaced between frames (a live controller's ramps)."""
 
     def __init__(self, target: StyleStatistics, span: int, diffusion: GaussianDiffusion, last_step: int):
         self.target, self.diffusion, self.last_step = target, diffusion, last_step
@@ -129,7 +141,8 @@ class RunningMatch:
             scale = (self.target.spread.to(x0) / spread).clamp(1 / MAX_SCALE, MAX_SCALE)
         moved = (x0 - mean) * scale + self.target.mean.to(x0)
         mask = matched_channels(x0.shape[-1], root_speed=False).to(x0)
-        return self.target.strength.to(x0) * mask * (moved - x0)
+        strength = self.target.strength.to(x0)
+        return strength.reshape(*strength.shape, 1) * mask * (moved - x0)
 
     def record(self, x0: torch.Tensor) -> None:
         """A frame made: its clean estimate (B, D) joins the running statistics."""
