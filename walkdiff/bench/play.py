@@ -29,6 +29,10 @@ switching every `hold` seconds. Each runs for every seed, one character, as a ga
   tour is walked with more seeds than the other takes (`switch_seeds`: 6 gives 48 switches on Xia's 8
   styles) and the share comes with its 95% (Wilson) interval; beside it, the same tour with each switch
   made at once (no ramp) shows what the ramp removes.
+- **Example clips**: for each style, the first real test clip of the evaluator's that is a window of the
+  walker long drives a walker whose label is the even mix of the styles it knows a speed for, walking
+  straight for `2 hold` seconds (`style_clips=`, `RunningMatch`); its windows are judged against the
+  clip's style, beside the same walk without the clip (the label alone) judged against it too.
 - **The page** (`walkdiff play`): seconds from launching headless Chromium on the page's address to the
   walker's bones drawn, the page's server already listening (its checkpoint loaded: `served_s`); left
   out, with the reason, where no Chromium is installed.
@@ -322,6 +326,37 @@ def _ratio(a, b) -> float | None:
     return a / b
 
 
+def clip_walks(make, scorer: ClipScorer, model, styles: list[str], seconds: float) -> dict:
+    """Walkers steered straight with one real test clip of each style as their example (see the module
+    docstring): the clip's style recognised in their windows, with and without the clip."""
+    window = model.spec["window"] / model.spec["fps"]
+    clips: dict[str, Path] = {}
+    for info, _, features in scorer.data.split_features("test"):
+        style = scorer.styles[info.style]
+        if style not in clips and (features.shape[0] - 2) / scorer.fps >= window:
+            clips[style] = info.path
+    if not clips:
+        raise WalkdiffError(f"the evaluator's test split has no clip of {window:.2f} s or more to steer with")
+    known = set(model.spec["styles"]) & set(styles)
+    mix = [1.0 if s in known else 0.0 for s in model.spec["styles"]]
+    walked: dict[str, list[Walked]] = {"with_clip": [], "label_alone": []}
+    for style, path in clips.items():
+        print(f"bench play: steered with a {style} clip ({Path(path).name})", flush=True)
+        scenario = Scenario(f"clip_{style}", seconds, [(0.0, {"direction": 0.0})], None)
+        for kind, options in (("with_clip", {"style_clips": str(path)}), ("label_alone", {})):
+            walker: WalkController = make(0, 1, None, style=mix, **options)
+            for _ in range(round(seconds * walker.fps)):
+                walker.advance()
+            walked[kind].append(_take(walker, scenario, 0, [style] * len(walker.kept), [], []))
+    rows = {kind: recognition(scorer, takes, model)[0] for kind, takes in walked.items()}
+    return {
+        "clips": {style: str(path) for style, path in clips.items()},
+        "accuracy": rows["with_clip"]["accuracy"], "label_alone_accuracy": rows["label_alone"]["accuracy"],
+        "real_test_accuracy": rows["with_clip"]["real_test_accuracy"],
+        "per_style": {s: v["accuracy"] for s, v in rows["with_clip"]["per_style"].items()},
+    }  # fmt: skip
+
+
 def wilson(hits: int, n: int, z: float = 1.96) -> list[float]:
     """The 95% Wilson score interval of a share hits / n."""
     if n == 0:
@@ -460,8 +495,11 @@ def bench_play(
         raise WalkdiffError("the checkpoint has no walking speed for any style", path=ckpt)
     speed = float(known[list(model.spec["styles"]).index(styles[0])]) * unit
 
-    def make(seed: int, n: int = 1, pace: float | None = speed, ramp: float = transition) -> WalkController:
-        return controller(model, styles[0], pace, seed, sampler, steps, eta, n, transition=ramp, **steering)
+    def make(seed: int, n: int = 1, pace: float | None = speed, ramp: float = transition, style=styles[0],
+             **options) -> WalkController:  # fmt: skip
+        return controller(
+            model, style, pace, seed, sampler, steps, eta, n, transition=ramp, **steering, **options
+        )
 
     takes, at_once = [], []
     for scenario in scenarios(styles, speed, hold):
@@ -477,6 +515,7 @@ def bench_play(
     print("bench play: style, skating and seams", flush=True)
     scorer = ClipScorer(evaluator)
     style, skating = recognition(scorer, takes, model)
+    clipped = clip_walks(make, scorer, model, styles, 2 * hold)
     print("bench play: the page in headless Chromium", flush=True)
     shown = page_open(ckpt, sampler, steps, eta)
     result = {
@@ -492,7 +531,7 @@ def bench_play(
             "frames_per_s_one_character": round(1000 / compute, 1), **timed,
         },
         "following": following(takes, fps, unit),
-        "style": style, "skating": skating, "page": shown,
+        "style": style, "skating": skating, "example_clips": clipped, "page": shown,
         "seams": seams(takes, model, fps)
         | {"switched_at_once": seams(at_once, model, fps) if at_once else None},
     }  # fmt: skip
