@@ -496,6 +496,7 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
     low, high = result["seams"]["share_interval_95"]
     assert low <= result["seams"]["share_above_p95"] <= high and high - low > 0.3  # 4 switches say little
     assert result["seams"]["switched_at_once"]["switches"] == 4
+    assert result["seams"]["over_ramp"]["frames"] == 15 and result["seams"]["over_ramp"]["inside_p95"] > 0
     clipped = result["example_clips"]  # one real test clip per style of the tiny evaluator steers a walker
     assert set(clipped["clips"]) == set(clipped["per_style"]) and len(clipped["clips"]) >= 2
     assert 0 <= clipped["accuracy"] <= 1 and 0 <= clipped["label_alone_accuracy"] <= 1

@@ -28,7 +28,9 @@ switching every `hold` seconds. Each runs for every seed, one character, as a ga
   switch in seamless motion lands above that p95 one time in twenty by chance (a footfall), so the style
   tour is walked with more seeds than the other takes (`switch_seeds`: 6 gives 48 switches on Xia's 8
   styles) and the share comes with its 95% (Wilson) interval; beside it, the same tour with each switch
-  made at once (no ramp) shows what the ramp removes.
+  made at once (no ramp) shows what the ramp removes. A ramp spreads a change over its frames, so
+  `over_ramp` also takes the largest change from the switch to the ramp's end against the 95th
+  percentile of the largest over spans as long inside a style.
 - **Example clips**: for each style, the first real test clip of the evaluator's that is a window of the
   walker long drives a walker whose label is the even mix of the styles it knows a speed for, walking
   straight for `2 hold` seconds (`style_clips=`, `RunningMatch`); its windows are judged against the
@@ -367,11 +369,12 @@ def wilson(hits: int, n: int, z: float = 1.96) -> list[float]:
     return [max(0.0, centre - half), min(1.0, centre + half)]
 
 
-def seams(takes: list[Walked], model, fps: float) -> dict:
-    """Joint-speed changes at style switches against those inside a style (see the module docstring)."""
+def seams(takes: list[Walked], model, fps: float, ramp: int = 0) -> dict:
+    """Joint-speed changes at style switches against those inside a style (see the module docstring); with
+    `ramp` frames, also the largest change over the whole ramp against the same over inside spans."""
     skeleton = model.skeleton
     offsets = torch.from_numpy(skeleton.offsets)
-    at, inside, tails = [], [], []
+    at, inside, over, inside_over, tails = [], [], [], [], []
     for take in takes:
         switches = [round(t * fps) for t, c in take.scenario.commands[1:] if "style" in c]
         if not switches:
@@ -379,23 +382,31 @@ def seams(takes: list[Walked], model, fps: float) -> dict:
         positions = features_to_positions(torch.from_numpy(take.raw).double(), offsets, skeleton.parents)
         speeds = (positions[1:] - positions[:-1]).norm(dim=-1).mean(-1) * fps  # (F - 1,) per step
         change = (speeds[1:] - speeds[:-1]).abs().numpy()  # change[i]: from step i to step i + 1
+        # around[i]: the changes into, at and after the step into frame i + 1; spans[i]: on to the ramp's end
         around = np.array([change[max(i - 1, 0) : i + 2].max() for i in range(len(change))])
+        spans = np.array([change[max(i - 1, 0) : i + 2 + ramp].max() for i in range(len(change))])
         far = round(0.5 * fps)
         near = np.zeros(len(around), dtype=bool)
         near[: round(fps)] = True  # the start from the mean pose
         for s in switches:
-            near[max(s - 1 - far, 0) : s - 1 + far] = True
-            if s - 1 < len(around):  # the changes into, at and after the step into the first new frame
+            near[max(s - 1 - far - ramp, 0) : s - 1 + far + ramp] = True
+            if s - 1 + ramp + 2 < len(around):
                 at.append(float(around[s - 1]))
+                over.append(float(spans[s - 1]))
         inside.extend(around[~near].tolist())
+        inside_over.extend(spans[~near].tolist())
         tails.append(seam_tails(speeds[None], [s - 1 for s in switches if s - 1 < len(speeds)]))
     if not at or not inside:
         return {"switches": 0, "share_above_p95": None}
-    p95 = float(np.percentile(inside, 95))
-    above = sum(v > p95 for v in at)
+    p95, p95_over = float(np.percentile(inside, 95)), float(np.percentile(inside_over, 95))
+    above, above_over = sum(v > p95 for v in at), sum(v > p95_over for v in over)
     return {
         "switches": len(at), "inside_p95": p95, "at_switches": at, "above_p95": above,
         "share_above_p95": above / len(at), "share_interval_95": wilson(above, len(at)),
+        "over_ramp": {
+            "frames": ramp, "inside_p95": p95_over, "above_p95": above_over,
+            "share_above_p95": above_over / len(over), "share_interval_95": wilson(above_over, len(over)),
+        },
         "seam_tails_speed": {
             "below_p5": float(np.mean([t[0] for t in tails])),
             "above_p95": float(np.mean([t[1] for t in tails])),
@@ -509,6 +520,7 @@ def bench_play(
             takes.append(walk_scenario(make, scenario, seed, round(fps)))
             if tour and transition > 0:
                 at_once.append(walk_scenario(partial(make, ramp=0.0), scenario, seed, round(fps)))
+    ramp = round(transition * fps)
     compute = 1000 * statistics.median([s for t in takes for s in t.seconds_per_frame])
     print("bench play: generation speed", flush=True)
     timed = generation(make, characters, timing_frames)
@@ -532,8 +544,8 @@ def bench_play(
         },
         "following": following(takes, fps, unit),
         "style": style, "skating": skating, "example_clips": clipped, "page": shown,
-        "seams": seams(takes, model, fps)
-        | {"switched_at_once": seams(at_once, model, fps) if at_once else None},
+        "seams": seams(takes, model, fps, ramp)
+        | {"switched_at_once": seams(at_once, model, fps, ramp) if at_once else None},
     }  # fmt: skip
     turns = result["following"]["heading_error_deg"]
     result["targets"] = verdicts({
