@@ -62,7 +62,7 @@ def test_clips_switched_live_ramp_in_and_out_and_fork(walker_ckpt, clip):
     for _ in range(4):
         walker.step()
         strengths.append(float(walker.guide.target.strength[0]))
-    assert strengths == pytest.approx([1 / 3, 2 / 3, 1, 1])
+    assert strengths == pytest.approx([7 / 27, 20 / 27, 1, 1])  # smoothstep at 1/3 and 2/3
     assert walker.commanded()["style_clips"] == [{"clip": clip, "weight": 2.0}]
     target = clip_statistics(model, clip)
     torch.testing.assert_close(walker.guide.target.mean[0], target.mean)  # it ramps strength, not where to
@@ -74,7 +74,7 @@ def test_clips_switched_live_ramp_in_and_out_and_fork(walker_ckpt, clip):
     for _ in range(4):
         np.testing.assert_array_equal(walker.step(30, 1.0).rotations, twin.step(30, 1.0).rotations)
         strengths.append(float(walker.guide.target.strength[0]))
-    assert strengths == pytest.approx([2 / 3, 1 / 3, 0, 0]) and "style_clips" not in walker.commanded()
+    assert strengths == pytest.approx([20 / 27, 7 / 27, 0, 0]) and "style_clips" not in walker.commanded()
     twin.step()  # the fork's running statistics are its own
     assert not torch.equal(twin.guide.mean, walker.guide.mean)
 

@@ -25,10 +25,10 @@ the command instead of from a path, every frame, from where the walker is:
   (`foot_lock.FootLock`), and free feet that skim the floor lifted clear of it. Both change only the
   frame shown and kept, never what the walker feeds back.
 - **Speed and style** act on the next frame: the pace at once, the style embedding (a name, a mix
-  'angry:0.7,old:0.3' or mixing weights) ramped linearly over `transition` seconds (`TRANSITION`; 0: at
-  once, which a walker whose denoiser reads the style itself shows as a jolt). With no
-  speed given the walker walks at the style's own mean speed in the training data (mixed as the styles
-  are), following the style as it changes.
+  'angry:0.7,old:0.3' or mixing weights) and example clips ramped, eased in and out, over `transition`
+  seconds (`TRANSITION`; 0: at once, which a walker whose denoiser reads the style itself shows as a
+  jolt). With no speed given the walker walks at the style's own mean speed in the training data (mixed
+  as the styles are), following the style as it changes.
 
 N characters (`characters=N`) are N rows of one batch: one network pass a frame for all. They share one
 random generator, so a character's motion depends on the seed and N, never on the other characters'
@@ -88,8 +88,8 @@ class Pose:
 
 @dataclass(frozen=True)
 class Ramp:
-    """A change ramped linearly over `frames` frames, `done` of them made: style weights, or example
-    clips' statistics."""
+    """A change ramped over `frames` frames (eased: `share`), `done` of them made: style weights, or
+    example clips' statistics."""
 
     start: object
     end: object
@@ -98,8 +98,13 @@ class Ramp:
 
     @property
     def share(self) -> float:
-        """How far along the next frame is (1: arrived)."""
-        return 1.0 if self.done >= self.frames else (self.done + 1) / self.frames
+        """How far along the next frame is (1: arrived), eased in and out (smoothstep): the change starts
+        and ends at rate 0, so the conditioning's rate of change never jumps (a linear ramp starts at
+        full rate on the switch's frame)."""
+        if self.done >= self.frames:
+            return 1.0
+        t = (self.done + 1) / self.frames
+        return t * t * (3 - 2 * t)
 
     def next(self) -> Ramp:
         return replace(self, done=min(self.done + 1, self.frames))
