@@ -500,6 +500,7 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
     clipped = result["example_clips"]  # one real test clip per style of the tiny evaluator steers a walker
     assert set(clipped["clips"]) == set(clipped["per_style"]) and len(clipped["clips"]) >= 2
     assert 0 <= clipped["accuracy"] <= 1 and 0 <= clipped["label_alone_accuracy"] <= 1
+    assert clipped["ms_per_frame"] > 0 and clipped["label_alone_ms_per_frame"] > 0
     assert {"turn", "speed", "stop"} == set(result["latency"]["by_kind"])
     assert len(result["latency"]["commands"]) == 9 and result["latency"]["median_ms"] > 0
     assert set(result["following"]["heading_error_deg"]) == {"straight", "turn_45", "turn_90", "turn_180"}

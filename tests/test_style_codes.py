@@ -159,7 +159,8 @@ def test_a_timeline_ramps_the_weights_over_the_transition(xia_tiny):
     timeline = parse_timeline(model, "neutral@0,old@2s,neutral:0.5+old:0.5@4", transition=1.0)
     neutral, old = (model.spec["styles"].index(s) for s in ("neutral", "old"))
     assert timeline.times == (0.0, 2.0, 4.0) and timeline.label == "timeline-neutral-old-neutral0.5_old0.5"
-    for seconds, expected_old in ((0.0, 0.0), (1.5, 0.0), (2.0, 0.5), (2.25, 0.75), (2.5, 1.0), (4.5, 0.5)):
+    eased = 0.75 * 0.75 * (3 - 2 * 0.75)  # smoothstep three quarters of the way through the ramp
+    for seconds, expected_old in ((0.0, 0.0), (1.5, 0.0), (2.0, 0.5), (2.25, eased), (2.5, 1.0), (4.5, 0.5)):
         weights = timeline.at(seconds)
         assert weights[old].item() == pytest.approx(expected_old)
         assert weights.sum().item() == pytest.approx(1.0) and weights[neutral].item() == pytest.approx(

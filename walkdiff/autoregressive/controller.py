@@ -51,7 +51,7 @@ from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root
 from walkdiff.models.pipeline import Pipeline
 from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, parse_style_clips
-from walkdiff.models.style_labels import parse_style
+from walkdiff.models.style_labels import eased, parse_style
 from walkdiff.models.style_statistics import RunningMatch, StyleStatistics
 from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
@@ -98,13 +98,8 @@ class Ramp:
 
     @property
     def share(self) -> float:
-        """How far along the next frame is (1: arrived), eased in and out (smoothstep): the change starts
-        and ends at rate 0, so the conditioning's rate of change never jumps (a linear ramp starts at
-        full rate on the switch's frame)."""
-        if self.done >= self.frames:
-            return 1.0
-        t = (self.done + 1) / self.frames
-        return t * t * (3 - 2 * t)
+        """How far along the next frame is (1: arrived), eased in and out (`eased`)."""
+        return 1.0 if self.done >= self.frames else eased((self.done + 1) / self.frames)
 
     def next(self) -> Ramp:
         return replace(self, done=min(self.done + 1, self.frames))

@@ -148,7 +148,8 @@ class PathFollower(Pipeline):
         """A `WalkController` (walkdiff/autoregressive/controller.py): `step(direction, speed)` makes the
         next frame of `characters` walkers starting as `style` (a name, a mix or weights) at `speed` m/s
         (None: the style's own). Default sampler DDIM 10 steps, eta 1 (docs/live-control.md); `options`:
-        transition, turn_rate, heading_assist, foot_lock, positions, headings, record."""
+        transition, turn_rate, heading_assist, foot_lock, positions, headings, record, style_clips and
+        match_clips (example clips whose posture and swing the walkers take on)."""
         from walkdiff.autoregressive.controller import controller
 
         return controller(self.model, style, speed, seed, sampler, steps, eta, characters, **options)

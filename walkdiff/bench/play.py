@@ -347,11 +347,17 @@ def clip_walks(make, scorer: ClipScorer, model, styles: list[str], seconds: floa
         scenario = Scenario(f"clip_{style}", seconds, [(0.0, {"direction": 0.0})], None)
         for kind, options in (("with_clip", {"style_clips": str(path)}), ("label_alone", {})):
             walker: WalkController = make(0, 1, None, style=mix, **options)
+            spent = []
             for _ in range(round(seconds * walker.fps)):
+                started = time.perf_counter()
                 walker.advance()
-            walked[kind].append(_take(walker, scenario, 0, [style] * len(walker.kept), [], []))
+                spent.append(time.perf_counter() - started)
+            walked[kind].append(_take(walker, scenario, 0, [style] * len(walker.kept), spent, []))
     rows = {kind: recognition(scorer, takes, model)[0] for kind, takes in walked.items()}
+    ms = {kind: 1000 * statistics.median([s for t in takes for s in t.seconds_per_frame])
+          for kind, takes in walked.items()}  # fmt: skip
     return {
+        "ms_per_frame": round(ms["with_clip"], 3), "label_alone_ms_per_frame": round(ms["label_alone"], 3),
         "clips": {style: str(path) for style, path in clips.items()},
         "accuracy": rows["with_clip"]["accuracy"], "label_alone_accuracy": rows["label_alone"]["accuracy"],
         "real_test_accuracy": rows["with_clip"]["real_test_accuracy"],

@@ -56,6 +56,14 @@ def style_ids(model, names: list[str]) -> torch.Tensor:
     return torch.tensor([vocabulary.index(n) for n in names], device=model.device)
 
 
+def eased(share: float) -> float:
+    """How far along a style change is at `share` of its ramp (0 to 1), eased in and out (smoothstep):
+    the change starts and ends at rate 0, so the conditioning's rate of change never jumps, where a linear
+    ramp starts at full rate (live-control.md: seams at style switches)."""
+    share = min(max(share, 0.0), 1.0)
+    return share * share * (3 - 2 * share)
+
+
 @dataclass(frozen=True)
 class StyleTimeline:
     """Keys (seconds, mixing weights over the styles (S,)), the first at 0, and the transition length."""
@@ -66,14 +74,14 @@ class StyleTimeline:
     transition: float
 
     def at(self, seconds: float) -> torch.Tensor:
-        """The mixing weights (S,) at a time: a key's from its time on, ramped from the previous key's over
-        the transition centred on it."""
+        """The mixing weights (S,) at a time: a key's from its time on, ramped (`eased`) from the previous
+        key's over the transition centred on it."""
         out = self.weights[0]
         for k in range(1, len(self.times)):
             share = (seconds - self.times[k]) / self.transition + 0.5 if self.transition > 0 else 1.0
             if share <= 0:
                 break
-            share = min(share, 1.0)
+            share = eased(share)
             out = (1 - share) * self.weights[k - 1] + share * self.weights[k]
         return out
 
