@@ -14,8 +14,11 @@ import torch
 from test_controller import lines_in, script
 
 from walkdiff.autoregressive.controller import controller
+from walkdiff.autoregressive.keys import KeyControl
+from walkdiff.autoregressive.play_page import open_page
 from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
+from walkdiff.common.errors import WalkdiffError
 from walkdiff.models.style_examples import clip_statistics
 from walkdiff.motion.representation import FeatureLayout
 
@@ -98,7 +101,7 @@ def test_control_lines_and_play_take_clips_and_record_them(walker_ckpt, clip, tm
     assert "-:2:" in err and "missing.bvh" in err, err
 
     played = tmp_path / "played"
-    events = [{"t": 0, "direction": 0}, {"t": 0.2, "style_clips": ""}, {"t": 0.3}]
+    events = [{"t": 0, "direction": 0}, {"t": 0.2, "key": "c"}, {"t": 0.3}]  # C turns the clip off
     steps = script(tmp_path / "s.jsonl", events)
     argv = ["play", "--ckpt", str(walker_ckpt), "--steps", "2", "--style-clip", f"{clip}:0.5",
             "--match-clips", "0.7", "--script", steps, "--out", str(played)]  # fmt: skip
@@ -106,3 +109,25 @@ def test_control_lines_and_play_take_clips_and_record_them(walker_ckpt, clip, tm
     manifest = json.loads((played / "take.json").read_text())
     assert manifest["style_clips"] == [{"clip": clip, "weight": 0.5}] and manifest["match_clips"] == 0.7
     assert manifest["commands"][0]["style_clips"] and "style_clips" not in manifest["commands"][-1]
+
+
+def test_the_c_key_turns_the_start_clips_off_and_on_on_the_page(walker_ckpt, clip):
+    keys = KeyControl(["neutral", "old"], lambda s: 1.0, "neutral", clips="a.bvh")
+    keys.key("C")
+    assert keys.state()["style_clips"] == ""
+    keys.key("c", down=False)  # a release changes nothing
+    keys.key("c")
+    assert keys.state()["style_clips"] == "a.bvh"
+    with pytest.raises(WalkdiffError, match="key c: no example clips to turn on: start with --style-clip"):
+        KeyControl(["neutral"], lambda s: 1.0, "neutral").key("c")
+
+    page = open_page(str(walker_ckpt), style="neutral", style_clips=clip, sampler="ddim", steps=2)
+    assert json.loads(page.hello)["clips"] == [clip]
+    page.step()
+    assert page.walker.commanded()["style_clips"] == [{"clip": clip, "weight": 1.0}]
+    page.receive('{"type": "key", "key": "c"}')
+    page.step()
+    assert "style_clips" not in page.walker.commanded()
+    page.receive('{"type": "key", "key": "c"}')
+    page.step()
+    assert page.walker.commanded()["style_clips"] and set(page.walker.clip_cache) == {clip, ""}  # read once

@@ -262,6 +262,7 @@ class WalkController:
         self.ramp = [Ramp(weights, weights)] * characters
         self.labels = [label] * characters
         self.match_clips, self.guide = match_clips, None
+        self.clip_cache: dict[str, StyleStatistics | None] = {}  # clips given as text, read once (the C key)
         self.matching: list[Ramp] = []  # example clips' statistics per character, once any are given
         self.matched: list[StyleStatistics] = []  # ... and those of the last frame
         self.clips: list[list[dict]] = [[] for _ in range(characters)]  # each character's clips, as recorded
@@ -457,7 +458,12 @@ class WalkController:
     def _statistics(self, style_clips) -> tuple[StyleStatistics, list[dict]]:
         """Example clips' statistics and their record ("" or []: none, matched at strength 0); the first
         clips given start matching every frame of every character (a `RunningMatch`)."""
-        statistics = clip_statistics(self.model, style_clips, self.match_clips)
+        if isinstance(style_clips, str) and style_clips in self.clip_cache:
+            statistics = self.clip_cache[style_clips]
+        else:
+            statistics = clip_statistics(self.model, style_clips, self.match_clips)
+            if isinstance(style_clips, str):
+                self.clip_cache[style_clips] = statistics
         if statistics is None:
             dim = self.model.spec["feature_dim"]
             return StyleStatistics(torch.zeros(dim), torch.ones(dim), torch.zeros(())), []

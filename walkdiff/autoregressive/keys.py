@@ -5,7 +5,8 @@
   heading angle up: from +z towards +x) or right, at `turn_rate` degrees per second while held.
 - ArrowUp / W and ArrowDown / S raise or lower the speed by `speed_step` m/s a press (0 at the least,
   `top_speed` at the most). Until the first press the walker walks at its style's own speed.
-- 1 .. 9 pick the model's style of that number (1: its first), R toggles recording.
+- 1 .. 9 pick the model's style of that number (1: its first), R toggles recording, C turns the example
+  clips the walker was started with (`--style-clip`) off and on again.
 
 Keys are named as a browser's `KeyboardEvent.key` names them (letters in either case). Key releases
 matter only for the turning keys. Direct commands (a direction, a speed, a style) set the same state, so
@@ -26,6 +27,7 @@ TOP_SPEED = 3.0  # m/s
 TURNS = {"arrowleft": 1.0, "a": 1.0, "arrowright": -1.0, "d": -1.0}
 SPEEDS = {"arrowup": 1.0, "w": 1.0, "arrowdown": -1.0, "s": -1.0}
 RECORD = "r"
+CLIP = "c"
 
 
 class KeyControl:
@@ -43,12 +45,14 @@ class KeyControl:
         turn_rate: float = KEY_TURN_RATE,
         speed_step: float = SPEED_STEP,
         top_speed: float = TOP_SPEED,
+        clips: str | list | None = None,
     ):
         self.styles, self.speed_of = list(styles), speed_of
         self.style, self.speed, self.direction, self.recording = style, speed, float(direction), recording
         self.turn_rate, self.speed_step, self.top_speed = turn_rate, speed_step, top_speed
         self.held: set[str] = set()
         self.style_clips: str | list | None = None  # example clips commanded (None: as the walker started)
+        self.clips, self.clip_on = clips or None, bool(clips)  # the clips C turns off and on
 
     def key(self, key: str, down: bool = True) -> None:
         """A key pressed (`down`) or released; an unknown key is a WalkdiffError naming the known ones."""
@@ -58,13 +62,18 @@ class KeyControl:
         if name in TURNS:
             (self.held.add if down else self.held.discard)(name)
         elif not down:
-            if name not in SPEEDS and name != RECORD and not name.isdigit():
+            if name not in SPEEDS and name not in (RECORD, CLIP) and not name.isdigit():
                 raise self._unknown(key)
         elif name in SPEEDS:
             speed = self.speed if self.speed is not None else self.speed_of(self.style)
             self.speed = round(min(max(speed + SPEEDS[name] * self.speed_step, 0.0), self.top_speed), 6)
         elif name == RECORD:
             self.recording = not self.recording
+        elif name == CLIP:
+            if self.clips is None:
+                raise WalkdiffError("key c: no example clips to turn on: start with --style-clip FILE")
+            self.clip_on = not self.clip_on
+            self.style_clips = self.clips if self.clip_on else ""
         elif name.isdigit() and name != "0" and len(name) == 1:
             number = int(name)
             if number > len(self.styles):
@@ -88,7 +97,7 @@ class KeyControl:
         if style is not None:
             self.style = style
         if style_clips is not None:
-            self.style_clips = style_clips
+            self.style_clips, self.clip_on = style_clips, bool(style_clips)
 
     def tick(self, seconds: float) -> None:
         """Time passes with the keys held as they are: the turning keys turn the direction."""
@@ -110,6 +119,6 @@ class KeyControl:
     @staticmethod
     def _unknown(key: str) -> WalkdiffError:
         return WalkdiffError(
-            f"key {key!r}: expected ArrowLeft/ArrowRight/ArrowUp/ArrowDown, w/a/s/d, 1-9 (a style) or r "
-            "(recording)"
+            f"key {key!r}: expected ArrowLeft/ArrowRight/ArrowUp/ArrowDown, w/a/s/d, 1-9 (a style), r "
+            "(recording) or c (example clips)"
         )

@@ -275,7 +275,8 @@ def play(
     pressed = any(e.key is not None and e.key.lower() == RECORD for e in events)
 
     def keys() -> KeyControl:
-        return KeyControl(walker.styles, walker.speed_of, style, speed, recording=not pressed)
+        clips = steering.get("style_clips")
+        return KeyControl(walker.styles, walker.speed_of, style, speed, recording=not pressed, clips=clips)
 
     dry = Replay(walker.fork(), keys(), events, str(script))  # every line checked before any work
     for frame in range(frames + 1):

@@ -144,6 +144,7 @@ class PlayPage:
             "joints": self.walker.joints, "parents": [int(p) for p in profile.skeleton.parents],
             "colors": sides, "top_speed": self.keys.top_speed, "record": self.out is not None,
             "out": None if self.out is None else str(self.out),
+            "clips": [c["clip"] for c in self.walker.start_clips] or None,
         }  # fmt: skip
 
     # ------------------------------------------------------------ the walker's thread
@@ -433,7 +434,8 @@ def open_page(
     if folder is not None:
         check_free(take_files(folder, 1), overwrite)
     walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, record=False, **steering)
-    keys = KeyControl(walker.styles, walker.speed_of, style, speed, recording=False)
+    clips = steering.get("style_clips")
+    keys = KeyControl(walker.styles, walker.speed_of, style, speed, recording=False, clips=clips)
     return PlayPage(walker, keys, folder, settings(ckpt, walker, style, speed, seed, fps), fps, overwrite)
 
 
