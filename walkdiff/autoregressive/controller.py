@@ -63,7 +63,7 @@ TURN_RATE = 720.0  # degrees per second the control's path bends at towards a ne
 MAX_AIM = math.pi / 2  # the control never aims further off the heading than this (no walking backwards)
 HEADING_ASSIST = 45.0  # degrees per second the root may be turned beyond the walker's own turn
 ASSIST_TIME = 0.25  # seconds: the time constant of that correction
-DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 8.3 ms a frame on 2 cores, lock included (live-control.md)
+DEFAULT_SAMPLER = SamplerChoice("ddim", 10, 1.0)  # 7.9 ms a frame on 2 cores, lock included (live-control.md)
 
 
 @dataclass(frozen=True)
