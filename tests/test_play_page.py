@@ -30,7 +30,13 @@ CHROMIUM = find_chromium()
 REQUIRE_BROWSER = os.environ.get("WALKDIFF_REQUIRE_BROWSER") == "1"
 WINDOW = (900, 600)
 PANEL = (350, 270)  # the panel's corner (width, height in pixels): left out of the colour counts
-KEYS = {"ArrowLeft": ("ArrowLeft", 37), "ArrowUp": ("ArrowUp", 38), "r": ("KeyR", 82), "9": ("Digit9", 57)}
+KEYS = {
+    "ArrowLeft": ("ArrowLeft", 37),
+    "ArrowUp": ("ArrowUp", 38),
+    "r": ("KeyR", 82),
+    "c": ("KeyC", 67),
+    "9": ("Digit9", 57),
+}
 FAST = dict(sampler="ddim", steps=2)
 
 
@@ -95,6 +101,7 @@ def test_the_page_draws_the_walker_its_keys_steer_it_and_r_records_takes(
             assert left > 30 and right > 30, (left, right)
             hello = browser.evaluate("walkdiffPlay.hello")
             assert hello["joints"] == page.walker.joints and hello["record"] is True
+            assert hello["clips"] is None and browser.evaluate('document.getElementById("clipRow").hidden')
 
             start = command(browser)
             assert start["direction"] == 0 and start["style"] == "neutral"
@@ -136,6 +143,26 @@ def test_the_page_draws_the_walker_its_keys_steer_it_and_r_records_takes(
     assert read_bvh(out / "take2.bvh").num_frames >= 3
     assert json.loads((out / "take2.json").read_text())["stopped"] == "stopped with the server"
     assert "walkdiff play: wrote" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(CHROMIUM is None and not REQUIRE_BROWSER, reason="no chromium here (CI installs it)")
+def test_with_an_example_clip_the_page_shows_its_button_and_c_turns_it_off(ckpt, xia_dir):
+    clip = str(xia_dir / "old_02_000.bvh")
+    page = open_page(str(ckpt), style="neutral", style_clips=clip, **FAST)
+    url = page.start(port=0)
+    try:
+        with Browser(url, *WINDOW) as browser:
+            browser.wait_for("window.walkdiffPlay && walkdiffPlay.drawnBones > 0", timeout=60, every=0.05)
+            assert browser.evaluate('document.getElementById("clipRow").hidden') is False
+            assert browser.evaluate('document.getElementById("clipText").textContent') == "old_02_000.bvh"
+            assert command(browser)["style_clips"] == [{"clip": clip, "weight": 1.0}]
+            browser.evaluate('document.getElementById("clip").click()')  # the button sends C
+            browser.wait_for("!walkdiffPlay.pose.command.style_clips", timeout=30, every=0.05)
+            assert "off" in browser.evaluate('document.getElementById("clip").textContent')
+            tap(browser, "c")
+            browser.wait_for("walkdiffPlay.pose.command.style_clips", timeout=30, every=0.05)
+    finally:
+        page.stop()
 
 
 def test_page_events_are_checked_and_a_refused_one_changes_nothing(ckpt, tmp_path):
