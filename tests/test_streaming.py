@@ -22,6 +22,7 @@ from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.speech import LogMelStream, SpeechDataModule, log_mel, read_wav
 from walkdiff.models.diffmotion import DiffMotion
 from walkdiff.models.path_walker import PathWalker
+from walkdiff.models.style_examples import clip_statistics
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, frames_for
 
@@ -298,6 +299,37 @@ def test_walk_stream_command_from_stdin_equals_walk(walker_ckpt, tmp_path, monke
     assert header["joints"] == a.skeleton.names and summary["done"] and summary["frames"] == a.num_frames
     assert [f["frame"] for f in frames] == list(range(a.num_frames))
     np.testing.assert_allclose([f["root"] for f in frames], a.positions[:, 0], atol=1e-3)
+
+
+def test_walk_stream_with_an_example_clip_equals_walk_with_it(walker_ckpt, tmp_path, monkeypatch, capsys):
+    """--style-clip on a stream moves its frames as walk moves the whole path's: the same frames."""
+    clip = str(sorted(walker_ckpt.parent.rglob("*.bvh"))[-1])
+    points = [[0.0, 0.0], [0.0, 0.5], [0.4, 1.0], [1.0, 1.2]]
+    (tmp_path / "p.json").write_text(json.dumps(points))
+    common = ["--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--seed", "3",
+              "--style-clip", f"{clip}:2", "--match-clips", "0.8"]  # fmt: skip
+    assert (
+        main(["walk", *common, "--path", str(tmp_path / "p.json"), "--out", str(tmp_path / "a"), "--no-gif"])
+        == 0
+    )
+    capsys.readouterr()
+    lines = "".join(json.dumps({"x": x, "z": z}) + "\n" for x, z in points)
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(lines.encode())))
+    assert main(["walk", "--stream", *common, "--path", "-", "--out", str(tmp_path / "b")]) == 0
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert summary["style_clips"] == [{"clip": clip, "weight": 2.0}]
+    a, b = read_bvh(tmp_path / "a" / "old_p.bvh"), read_bvh(tmp_path / "b" / "old_stdin.bvh")
+    np.testing.assert_array_equal(a.rotations, b.rotations)
+    plain = tmp_path / "c"
+    assert (
+        main(["walk", *common[:8], "--path", str(tmp_path / "p.json"), "--out", str(plain), "--no-gif"]) == 0
+    )
+    assert not np.array_equal(read_bvh(plain / "old_p.bvh").rotations, a.rotations)  # the clip did act
+
+    model = load_walker(walker_ckpt)
+    matched = WalkStream(model, 0, 12.0, match=clip_statistics(model, clip))
+    with pytest.raises(WalkdiffError, match="matches example clips holds one stream"):
+        WalkStream(model, 0, 12.0, batch=matched.batch)
 
 
 # ---------------------------------------------------------------- the gesture command

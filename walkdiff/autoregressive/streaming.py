@@ -38,6 +38,7 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.data.speech import LogMelStream
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root, path_control, path_start
+from walkdiff.models.style_statistics import RunningMatch
 from walkdiff.motion.path import Polyline, frames_for, frames_for_length
 
 
@@ -52,6 +53,8 @@ class StreamBatch:
 
     def join(self, stream) -> int:
         """A new stream at its start; its row."""
+        if self.frames.tables.guide is not None and self.streams:  # its running statistics are one batch's
+            raise WalkdiffError("a stream batch that matches example clips holds one stream")
         with torch.inference_mode():
             self.frames.add(1)
         self.streams.append(stream)
@@ -189,6 +192,16 @@ class GestureStream(Stream):
 
 
 class WalkBatch(StreamBatch):
+    """Walker streams; with `match` (example clips' statistics), one stream whose frames are moved to them
+    as `walk --style-clip` moves a whole walk's (`RunningMatch`)."""
+
+    def __init__(self, model, seed: int = 0, sampler: SamplerChoice | None = None, match=None):
+        super().__init__(model, seed, sampler)
+        if match is not None:
+            self.frames = model.start_streams(0, sampler, fused=False)  # the fused network takes no guide
+            last = self.frames.tables.steps.timesteps[-1]
+            self.frames.tables.guide = RunningMatch(match, round(model.spec["fps"]), model.diffusion, last)
+
     def encode(self, ready: list) -> torch.Tensor:
         control = torch.cat([s.control() for s in ready]).to(self.model.device)
         style = torch.tensor([s.style for s in ready], device=self.model.device)
@@ -202,6 +215,7 @@ class WalkStream(Stream):
     point is searched within `reach` of the last one, and the control's points lie up to pace[-1]
     beyond it, so a path longer than progress + reach + pace[-1] gives the controls the whole path
     gives. The walk lasts, as `walkdiff walk`, the frames it takes to cover the path at `speed`.
+    `match`: example clips' statistics its frames are moved to (in a batch of its own, `WalkBatch`).
     """
 
     def __init__(
@@ -212,6 +226,7 @@ class WalkStream(Stream):
         seed: int = 0,
         batch: WalkBatch | None = None,
         sampler: SamplerChoice | None = None,
+        match=None,
     ):
         if not 0 < speed < math.inf:
             raise WalkdiffError(f"the walking speed must be a positive number, got {speed}")
@@ -226,7 +241,7 @@ class WalkStream(Stream):
         self.position = self.heading = self.progress = None
         self.made: list[np.ndarray] = []
         self.roots: list[tuple[np.ndarray, float]] = []  # per frame made: root (x, z) and heading there
-        self.batch = batch or WalkBatch(model, seed, sampler)
+        self.batch = batch or WalkBatch(model, seed, sampler, match)
         self.row = self.batch.join(self)
 
     def feed(self, points) -> None:

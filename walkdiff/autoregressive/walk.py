@@ -422,10 +422,12 @@ def walk_stream(
     sampler: str = "ddpm",
     steps: int | None = None,
     eta: float = 0.0,
+    style_clips=None,
+    match_clips: float = MATCH_CLIPS,
 ) -> dict:
     """`walkdiff walk --stream`: walking along a path whose points arrive as JSON lines (stdin, or a file
     still being written), one JSON line per frame on stdout as soon as the path ahead allows, the BVH at
-    the end."""
+    the end; with `style_clips`, in their posture and swing as `walk` walks them."""
     import sys
 
     from walkdiff.autoregressive.streaming import WalkStream, emit, read_growing, read_pipe, stopped
@@ -444,7 +446,10 @@ def walk_stream(
     bvh = out / f"{stem}.bvh"
     check_free([bvh], overwrite)
     chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    stream = WalkStream(model, index, units_per_s, seed, sampler=SamplerChoice(sampler, steps, eta))
+    match = clip_statistics(model, style_clips, match_clips)
+    stream = WalkStream(
+        model, index, units_per_s, seed, sampler=SamplerChoice(sampler, steps, eta), match=match
+    )
     names = model.profile.skeleton.names
     emit({
         "fps": fps, "joints": names, "units_per_metre": 1 / unit,
@@ -487,6 +492,8 @@ def walk_stream(
     summary = {
         "done": True, "frames": len(raws), "path_length_m": stream.path.length * unit,
         "speed_m_s": units_per_s * unit, "wall_s": round(time.perf_counter() - started, 3),
+        "style_clips": [{"clip": str(c), "weight": w} for c, w in parse_style_clips(style_clips)]
+        if style_clips else None,
         "files": [str(bvh)],
     }  # fmt: skip
     emit(summary)

@@ -166,9 +166,7 @@ def run_walk(args: argparse.Namespace) -> None:
     options = keyword_options(args)
     if args.stream:
         no_rig_on_streams(options)
-        if options["style_clips"]:
-            raise WalkdiffError("--style-clip is not for --stream: walk the path whole")
-        for key in ("stream", "gif", "preview_seconds", "transition", "style_clips", "match_clips"):
+        for key in ("stream", "gif", "preview_seconds", "transition"):
             del options[key]
         walk_stream(**options)  # prints its own JSON lines
     else:
