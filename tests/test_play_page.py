@@ -30,13 +30,8 @@ CHROMIUM = find_chromium()
 REQUIRE_BROWSER = os.environ.get("WALKDIFF_REQUIRE_BROWSER") == "1"
 WINDOW = (900, 600)
 PANEL = (350, 270)  # the panel's corner (width, height in pixels): left out of the colour counts
-KEYS = {
-    "ArrowLeft": ("ArrowLeft", 37),
-    "ArrowUp": ("ArrowUp", 38),
-    "r": ("KeyR", 82),
-    "c": ("KeyC", 67),
-    "9": ("Digit9", 57),
-}
+KEYS = {"ArrowLeft": ("ArrowLeft", 37), "ArrowUp": ("ArrowUp", 38), "r": ("KeyR", 82), "c": ("KeyC", 67),
+        "9": ("Digit9", 57)}  # fmt: skip
 FAST = dict(sampler="ddim", steps=2)
 
 

@@ -279,20 +279,25 @@ def test_a_path_given_point_by_point_walks_as_the_whole_path(walker_ckpt):
     assert len(a.take()) == frames and len(b.take()) == frames_for(Polyline.of(points[:30]), 12.0, 30.0)
 
 
-def test_walk_stream_command_from_stdin_equals_walk(walker_ckpt, tmp_path, monkeypatch, capsys):
-    points = [[0.0, 0.0], [0.0, 0.4], [0.3, 0.9], [0.9, 1.2], [1.5, 1.3]]  # metres
+def walk_and_stream(common: list[str], points: list, tmp_path, monkeypatch, capsys):
+    """`walk` of a path file and `walk --stream` of the same points on stdin: both BVHs (as "a/old_p.bvh"
+    and "b/old_stdin.bvh" name them for --style old) and the stream's JSON lines."""
+    tmp_path.mkdir(exist_ok=True)
     (tmp_path / "p.json").write_text(json.dumps(points))
-    common = ["--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--seed", "2"]
-    assert (
-        main(["walk", *common, "--path", str(tmp_path / "p.json"), "--out", str(tmp_path / "a"), "--no-gif"])
-        == 0
-    )
+    argv = ["walk", *common, "--path", str(tmp_path / "p.json"), "--out", str(tmp_path / "a"), "--no-gif"]
+    assert main(argv) == 0
     capsys.readouterr()
     lines = "".join(json.dumps({"x": x, "z": z}) + "\n" for x, z in points)
     monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(lines.encode())))
     assert main(["walk", "--stream", *common, "--path", "-", "--out", str(tmp_path / "b")]) == 0
     out = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    a, b = read_bvh(tmp_path / "a" / "old_p.bvh"), read_bvh(tmp_path / "b" / "old_stdin.bvh")
+    return read_bvh(tmp_path / "a" / "old_p.bvh"), read_bvh(tmp_path / "b" / "old_stdin.bvh"), out
+
+
+def test_walk_stream_command_from_stdin_equals_walk(walker_ckpt, tmp_path, monkeypatch, capsys):
+    points = [[0.0, 0.0], [0.0, 0.4], [0.3, 0.9], [0.9, 1.2], [1.5, 1.3]]  # metres
+    common = ["--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--seed", "2"]
+    a, b, out = walk_and_stream(common, points, tmp_path, monkeypatch, capsys)
     np.testing.assert_array_equal(a.rotations, b.rotations)
     np.testing.assert_array_equal(a.positions, b.positions)
     header, frames, summary = out[0], out[1:-1], out[-1]
@@ -305,26 +310,13 @@ def test_walk_stream_with_an_example_clip_equals_walk_with_it(walker_ckpt, tmp_p
     """--style-clip on a stream moves its frames as walk moves the whole path's: the same frames."""
     clip = str(sorted(walker_ckpt.parent.rglob("*.bvh"))[-1])
     points = [[0.0, 0.0], [0.0, 0.5], [0.4, 1.0], [1.0, 1.2]]
-    (tmp_path / "p.json").write_text(json.dumps(points))
-    common = ["--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--seed", "3",
-              "--style-clip", f"{clip}:2", "--match-clips", "0.8"]  # fmt: skip
-    assert (
-        main(["walk", *common, "--path", str(tmp_path / "p.json"), "--out", str(tmp_path / "a"), "--no-gif"])
-        == 0
-    )
-    capsys.readouterr()
-    lines = "".join(json.dumps({"x": x, "z": z}) + "\n" for x, z in points)
-    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(lines.encode())))
-    assert main(["walk", "--stream", *common, "--path", "-", "--out", str(tmp_path / "b")]) == 0
-    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
-    assert summary["style_clips"] == [{"clip": clip, "weight": 2.0}]
-    a, b = read_bvh(tmp_path / "a" / "old_p.bvh"), read_bvh(tmp_path / "b" / "old_stdin.bvh")
+    common = ["--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--seed", "3"]
+    clips = ["--style-clip", f"{clip}:2", "--match-clips", "0.8"]
+    a, b, out = walk_and_stream([*common, *clips], points, tmp_path / "clip", monkeypatch, capsys)
+    assert out[-1]["style_clips"] == [{"clip": clip, "weight": 2.0}]
     np.testing.assert_array_equal(a.rotations, b.rotations)
-    plain = tmp_path / "c"
-    assert (
-        main(["walk", *common[:8], "--path", str(tmp_path / "p.json"), "--out", str(plain), "--no-gif"]) == 0
-    )
-    assert not np.array_equal(read_bvh(plain / "old_p.bvh").rotations, a.rotations)  # the clip did act
+    plain, _, _ = walk_and_stream(common, points, tmp_path / "plain", monkeypatch, capsys)
+    assert not np.array_equal(plain.rotations, a.rotations)  # the clip did act
 
     model = load_walker(walker_ckpt)
     matched = WalkStream(model, 0, 12.0, match=clip_statistics(model, clip))
