@@ -491,7 +491,8 @@ def test_bench_play_writes_every_section_with_finite_numbers(ckpt, evaluator, tm
     for section in ("latency", "generation", "following", "style", "skating", "seams", "page", "targets"):
         assert section in result, section
     assert "machine" in result and "page_open_s" in result["page"] and result["page"].get("bones_drawn", 1)
-    assert len(result["page"].get("launches_s", [1, 2, 3])) == 3  # the page timed over three launches
+    if "skipped" not in result["page"]:  # Chromium here (CI installs it): the page timed over three launches
+        assert len(result["page"]["launches_s"]) == 3
     assert all(math.isfinite(x) for x in numbers(result))
     assert result["styles"] == ["neutral", "old"] and result["seams"]["switches"] == 2  # 2 a tour, 1 seed
     low, high = result["seams"]["share_interval_95"]

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -50,9 +49,9 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root
 from walkdiff.models.pipeline import Pipeline
-from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, parse_style_clips
+from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, clips_record
 from walkdiff.models.style_labels import eased, parse_style
-from walkdiff.models.style_statistics import RunningMatch, StyleStatistics
+from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
@@ -329,13 +328,16 @@ class WalkController:
                     f"style {label}: the checkpoint has no walking speed for it; give a speed"
                 )
         frames = round(self.transition * self.fps)
+        if matched is not None and matched[0] is not None and self.guide is None:
+            self._start_matching(matched[0])
         for k in rows:
             if weights is not None:
                 self.ramp[k] = Ramp(self.weights[k].clone(), weights[0], 0, frames)
                 self.labels[k] = weights[1]
             if matched is not None and self.guide is not None:  # (no clips to drop before the first)
                 statistics, self.clips[k] = matched
-                self.matching[k] = Ramp(self.matched[k], statistics, 0, frames)
+                dropped = replace(self.matched[k], strength=torch.zeros(()))  # its strength ramps to 0
+                self.matching[k] = Ramp(self.matched[k], statistics or dropped, 0, frames)
             if angle is not None:
                 self.target[k] = angle
             if value is not None:
@@ -455,29 +457,22 @@ class WalkController:
 
     # ------------------------------------------------------------ example clips
 
-    def _statistics(self, style_clips) -> tuple[StyleStatistics, list[dict]]:
-        """Example clips' statistics and their record ("" or []: none, matched at strength 0); the first
-        clips given start matching every frame of every character (a `RunningMatch`)."""
-        if isinstance(style_clips, str) and style_clips in self.clip_cache:
-            statistics = self.clip_cache[style_clips]
-        else:
+    def _statistics(self, style_clips) -> tuple[StyleStatistics | None, list[dict]]:
+        """Example clips' statistics (None for none: "" or []) and their record; clips given as text are
+        read once (C on the page turns the same clips off and on)."""
+        if not (isinstance(style_clips, str) and style_clips in self.clip_cache):
             statistics = clip_statistics(self.model, style_clips, self.match_clips)
-            if isinstance(style_clips, str):
-                self.clip_cache[style_clips] = statistics
-        if statistics is None:
-            dim = self.model.spec["feature_dim"]
-            return StyleStatistics(torch.zeros(dim), torch.ones(dim), torch.zeros(())), []
-        if self.guide is None:
-            off = StyleStatistics(statistics.mean, statistics.spread, torch.zeros(()))
-            self.matching, self.matched = [Ramp(off, off)] * self.characters, [off] * self.characters
-            tables = self.streams.tables
-            if tables.fused is not None:  # the fused network takes no guide
-                tables = self.streams.tables = self.model.sampling_tables(self.sampler, fused=False)
-            self.guide = RunningMatch(off, round(self.fps), self.model.diffusion, tables.steps.timesteps[-1])
-            tables.guide = self.guide
-        clips = [{"clip": str(c) if isinstance(c, str | os.PathLike) else "a Motion", "weight": w}
-                 for c, w in parse_style_clips(style_clips)]  # fmt: skip
-        return statistics, clips
+            if not isinstance(style_clips, str):
+                return statistics, clips_record(style_clips)
+            self.clip_cache[style_clips] = statistics
+        return self.clip_cache[style_clips], clips_record(style_clips)
+
+    def _start_matching(self, statistics: StyleStatistics) -> None:
+        """The first clips given: every frame of every character is matched from now on (a `RunningMatch`),
+        each character from strength 0 until its own clips ramp in."""
+        off = replace(statistics, strength=torch.zeros(()))
+        self.matching, self.matched = [Ramp(off, off)] * self.characters, [off] * self.characters
+        self.guide = self.model.match_streams(self.streams, off, self.sampler)
 
     # ------------------------------------------------------------ checks
 

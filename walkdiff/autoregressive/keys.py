@@ -52,7 +52,7 @@ class KeyControl:
         self.turn_rate, self.speed_step, self.top_speed = turn_rate, speed_step, top_speed
         self.held: set[str] = set()
         self.style_clips: str | list | None = None  # example clips commanded (None: as the walker started)
-        self.clips, self.clip_on = clips or None, bool(clips)  # the clips C turns off and on
+        self.clips = clips or None  # the clips C turns off and on
 
     def key(self, key: str, down: bool = True) -> None:
         """A key pressed (`down`) or released; an unknown key is a WalkdiffError naming the known ones."""
@@ -72,8 +72,8 @@ class KeyControl:
         elif name == CLIP:
             if self.clips is None:
                 raise WalkdiffError("key c: no example clips to turn on: start with --style-clip FILE")
-            self.clip_on = not self.clip_on
-            self.style_clips = self.clips if self.clip_on else ""
+            on = bool(self.clips) if self.style_clips is None else bool(self.style_clips)
+            self.style_clips = "" if on else self.clips
         elif name.isdigit() and name != "0" and len(name) == 1:
             number = int(name)
             if number > len(self.styles):
@@ -97,7 +97,7 @@ class KeyControl:
         if style is not None:
             self.style = style
         if style_clips is not None:
-            self.style_clips, self.clip_on = style_clips, bool(style_clips)
+            self.style_clips = style_clips
 
     def tick(self, seconds: float) -> None:
         """Time passes with the keys held as they are: the turning keys turn the direction."""

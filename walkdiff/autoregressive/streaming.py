@@ -38,7 +38,6 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.data.speech import LogMelStream
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root, path_control, path_start
-from walkdiff.models.style_statistics import RunningMatch
 from walkdiff.motion.path import Polyline, frames_for, frames_for_length
 
 
@@ -198,9 +197,7 @@ class WalkBatch(StreamBatch):
     def __init__(self, model, seed: int = 0, sampler: SamplerChoice | None = None, match=None):
         super().__init__(model, seed, sampler)
         if match is not None:
-            self.frames = model.start_streams(0, sampler, fused=False)  # the fused network takes no guide
-            last = self.frames.tables.steps.timesteps[-1]
-            self.frames.tables.guide = RunningMatch(match, round(model.spec["fps"]), model.diffusion, last)
+            model.match_streams(self.frames, match, sampler)
 
     def encode(self, ready: list) -> torch.Tensor:
         control = torch.cat([s.control() for s in ready]).to(self.model.device)

@@ -21,7 +21,7 @@ from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.pipeline import Pipeline
-from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, parse_style_clips
+from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, clips_record
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.bvh import write_bvh
@@ -318,9 +318,7 @@ def walk(
         manifest = {
             "checkpoint": str(ckpt),
             "style": style,
-            "style_clips": [{"clip": str(c), "weight": w} for c, w in parse_style_clips(style_clips)]
-            if style_clips
-            else [],
+            "style_clips": clips_record(style_clips),
             "match_clips": match_clips if style_clips else None,
             "path": str(path),
             "path_length_m": metres.length,
@@ -492,8 +490,7 @@ def walk_stream(
     summary = {
         "done": True, "frames": len(raws), "path_length_m": stream.path.length * unit,
         "speed_m_s": units_per_s * unit, "wall_s": round(time.perf_counter() - started, 3),
-        "style_clips": [{"clip": str(c), "weight": w} for c, w in parse_style_clips(style_clips)]
-        if style_clips else None,
+        "style_clips": clips_record(style_clips) or None,
         "files": [str(bvh)],
     }  # fmt: skip
     emit(summary)

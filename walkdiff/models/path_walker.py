@@ -240,6 +240,17 @@ class PathWalker(AutoregressiveDiffusion):
 
     # ------------------------------------------------------------ generation
 
+    def match_streams(
+        self, streams, target: StyleStatistics, sampler: SamplerChoice | None = None
+    ) -> RunningMatch:
+        """Every frame the streams make from now on moved to example clips' statistics (`RunningMatch`,
+        over a second of frames); the guide, whose target may be replaced between frames."""
+        if streams.tables.fused is not None:  # the fused network takes no guide
+            streams.tables = self.sampling_tables(sampler, fused=False)
+        last = streams.tables.steps.timesteps[-1]
+        streams.tables.guide = RunningMatch(target, round(self.spec["fps"]), self.diffusion, last)
+        return streams.tables.guide
+
     @torch.inference_mode()  # per-frame sampling is thousands of small ops: see DiffMotion.generate
     def generate(
         self,
@@ -270,8 +281,7 @@ class PathWalker(AutoregressiveDiffusion):
         reach = 2 * float(pace[:, -1].max()) + 1.0  # how far along the path a walker may get in a frame
         streams = self.start_streams(rows, sampler, fused and match is None)
         if match is not None:
-            last = streams.tables.steps.timesteps[-1]
-            streams.tables.guide = RunningMatch(match, round(self.spec["fps"]), self.diffusion, last)
+            self.match_streams(streams, match, sampler)
         poses = torch.zeros(rows, frames, dim, device=self.device)
         style = style.to(self.device)
         for f in range(frames):

@@ -103,6 +103,16 @@ def label_code(model, style: torch.Tensor) -> torch.Tensor:
     return model.ema.module.style.as_codes(style[None])[0]
 
 
+def clips_record(style_clips) -> list[dict]:
+    """What a manifest records of example clips: each one's path (or "a Motion") and weight; [] for none."""
+    if not style_clips:
+        return []
+    return [
+        {"clip": str(c) if isinstance(c, str | os.PathLike) else "a Motion", "weight": w}
+        for c, w in parse_style_clips(style_clips)
+    ]
+
+
 def clip_statistics(model, style_clips, match_clips: float = MATCH_CLIPS) -> StyleStatistics | None:
     """The example clips' pose statistics ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip,
     weight) pairs), weighted, matched at `match_clips`; None without clips. For a model with no style
