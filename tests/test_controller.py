@@ -620,3 +620,19 @@ def test_the_foot_lock_lifts_a_free_foot_that_skims_the_floor_and_lets_it_down_g
     lift = raised - heights(pose, position)
     raw = step([0.0] * 4, position)  # standing still: no longer skimming
     np.testing.assert_allclose(heights(raw, position) - heights(pose, position), LIFT_FADE * lift, atol=1e-4)
+
+
+def test_ctrl_c_on_control_writes_the_take_recorded(ckpt, tmp_path, monkeypatch, capsys):
+    """Ctrl-C while `control` waits for the next line: the recorded frames are written as a complete take
+    (BVH, glb, manifest), one line says where, exit 130 (it was: 'interrupted', nothing written)."""
+    from test_streaming import ctrl_c_after, interrupted_output
+
+    commands = [{"direction": [1, 0], "speed": 1.0}, {"frames": 4}]
+    monkeypatch.setattr("sys.stdin", ctrl_c_after("".join(json.dumps(c) + "\n" for c in commands).encode()))
+    out = tmp_path / "live"
+    assert main(["control", "--ckpt", str(ckpt), "--style", "old", "--steps", "2", "--out", str(out)]) == 130
+    frames, summary, err = interrupted_output(capsys)
+    assert len(frames) == 5 and summary["interrupted"] and summary["frames"] == 5
+    assert err == [f"walkdiff: interrupted; the 5 frames made so far are in {', '.join(summary['files'])}"]
+    assert read_bvh(out / "take.bvh").num_frames == 5 and (out / "take.glb").is_file()
+    assert json.loads((out / "take.json").read_text())["error"] == "interrupted"

@@ -524,3 +524,112 @@ def test_gesture_stream_follows_a_wav_while_it_is_written(speech_ckpt, tmp_path,
                  str(tmp_path / "whole"), "--preview-seconds", "1"]) == 0  # fmt: skip
     live, whole = read_bvh(tmp_path / "live" / "live.bvh"), read_bvh(tmp_path / "whole" / "whole.bvh")
     np.testing.assert_allclose(live.rotations, whole.rotations, atol=1e-4)
+
+
+# ---------------------------------------------------------------- Ctrl-C on a stream
+
+
+class CtrlC(io.RawIOBase):
+    """Standard input that gives `data`, then raises KeyboardInterrupt where it would block: what Ctrl-C
+    does to a command waiting for more input on a terminal or a pipe."""
+
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        if not self.data:
+            raise KeyboardInterrupt
+        n = min(len(buffer), len(self.data))
+        buffer[:n], self.data = self.data[:n], self.data[n:]
+        return n
+
+
+def ctrl_c_after(data: bytes) -> io.TextIOWrapper:
+    return io.TextIOWrapper(io.BufferedReader(CtrlC(data)))
+
+
+def interrupted_output(capsys) -> tuple[list[dict], dict, list[str]]:
+    """(frame lines, last line, stderr lines) of a stream stopped by Ctrl-C."""
+    captured = capsys.readouterr()
+    printed = [json.loads(line) for line in captured.out.splitlines()]
+    return printed[1:-1], printed[-1], captured.err.strip().splitlines()
+
+
+def test_ctrl_c_on_a_walk_stream_writes_the_frames_made(walker_ckpt, tmp_path, monkeypatch, capsys):
+    """Ctrl-C while the walker waits for more path: the BVH holds every frame sent, the last JSON line and
+    one stderr line say so, and the exit status is 130 (it was: 'interrupted', nothing written)."""
+    lines = "".join(json.dumps({"x": 0.0, "z": 0.1 * k}) + "\n" for k in range(31))  # 3 m
+    monkeypatch.setattr("sys.stdin", ctrl_c_after(lines.encode()))
+    out = tmp_path / "out"
+    args = ["walk", "--stream", "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--path", "-"]
+    assert main([*args, "--out", str(out)]) == 130
+    frames, summary, err = interrupted_output(capsys)
+    bvh = out / "old_stdin.bvh"
+    assert len(frames) > 30
+    assert summary == {"done": False, "frames": len(frames), "interrupted": True, "files": [str(bvh)]}
+    assert err == [f"walkdiff: interrupted; the {len(frames)} frames made so far are in {bvh}"]
+    motion = read_bvh(bvh)
+    assert motion.num_frames == len(frames)
+    np.testing.assert_allclose([f["root"] for f in frames], motion.positions[:, 0], atol=1e-3)
+
+
+def test_ctrl_c_on_a_gesture_stream_writes_the_frames_made(speech_ckpt, tmp_path, monkeypatch, capsys):
+    samples = np.random.default_rng(3).normal(0, 0.2, RATE).astype(np.float32)
+    monkeypatch.setattr("sys.stdin", ctrl_c_after(pcm(samples)))
+    out = tmp_path / "out"
+    args = ["gesture", "--stream", "--ckpt", str(speech_ckpt[0]), "--audio", "-", "--streams", "2"]
+    assert main([*args, "--out", str(out)]) == 130
+    frames, summary, err = interrupted_output(capsys)
+    files = [out / "stdin_seed0_0.bvh", out / "stdin_seed0_1.bvh"]
+    made = len(frames) // 2
+    assert made == 20 - 8  # the mel frames of the second heard, less the look-ahead: no padded end
+    assert summary == {"done": False, "frames": made, "interrupted": True, "files": [str(f) for f in files]}
+    assert err == [f"walkdiff: interrupted; the {made} frames made so far are in {files[0]}, {files[1]}"]
+    assert [read_bvh(f).num_frames for f in files] == [made, made]
+
+
+def test_ctrl_c_before_any_frame_writes_nothing(walker_ckpt, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr("sys.stdin", ctrl_c_after(b'{"x": 0, "z": 0}\n'))
+    args = ["walk", "--stream", "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "1", "--path", "-"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 130
+    _, summary, err = interrupted_output(capsys)
+    assert summary == {"done": False, "frames": 0, "interrupted": True, "files": []}
+    assert err == ["walkdiff: interrupted; 0 frames made, nothing written"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_sigint_on_a_walk_stream_process_exits_130_with_its_bvh(walker_ckpt, tmp_path):
+    """The real signal on a real process waiting on a pipe: what Ctrl-C in a terminal sends."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "walkdiff.cli.main", "--threads", "1", "walk", "--stream", "--ckpt",
+               str(walker_ckpt), "--style", "old", "--speed", "0.7", "--path", "-", "--out", str(out)]  # fmt: skip
+    env = {**os.environ, "WALKDIFF_PROGRESS": "0"}
+    process = subprocess.Popen(
+        command, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        for k in range(31):
+            process.stdin.write(json.dumps({"x": 0.0, "z": 0.1 * k}) + "\n")
+        process.stdin.flush()
+        header = process.stdout.readline()
+        assert header.startswith('{"fps"'), process.stderr.read()
+        assert json.loads(process.stdout.readline())["frame"] == 0  # walking: now waiting for more path
+        process.send_signal(signal.SIGINT)
+        rest, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 130, err
+    summary = json.loads(rest.splitlines()[-1])
+    assert summary["interrupted"] and summary["frames"] > 0
+    assert err.strip().splitlines() == [
+        f"walkdiff: interrupted; the {summary['frames']} frames made so far are in {out / 'old_stdin.bvh'}"
+    ]
+    assert read_bvh(out / "old_stdin.bvh").num_frames == summary["frames"]

@@ -270,6 +270,7 @@ def gesture_stream(
         GestureBatch,
         GestureStream,
         PcmDecoder,
+        StreamEnd,
         WavDecoder,
         emit,
         read_growing,
@@ -332,8 +333,8 @@ def gesture_stream(
 
     if from_stdin:
         start(rate)
-    failure = None
-    try:
+    end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
+    with end.watch():
         for data in chunks:
             arrived = time.perf_counter()
             samples = decoder.decode(data)
@@ -354,13 +355,11 @@ def gesture_stream(
             decoder.end()
         for stream in live:
             stream.close()
-    except WalkdiffError as error:  # bad input midway: the frames made so far are written, then it fails
-        failure = error
-    batch.run()
+    end.finish(batch.run)
     send(time.perf_counter())
     made = _write_streamed(model, targets, poses, smooth)
-    if failure is not None:
-        raise stopped(failure, made, targets if made else [])
+    if end.error is not None:
+        raise stopped(end.error, made, targets if made else [])
     summary = {
         "done": True, "frames": made, "seconds": received / rate, "streams": streams,
         "wall_s": round(time.perf_counter() - started, 3), "files": [str(t) for t in targets],
@@ -371,9 +370,9 @@ def gesture_stream(
 
 def _write_streamed(model, targets: list[Path], poses: list[list[np.ndarray]], smooth: bool) -> int:
     """The BVH of each stream's poses, all or none; the frames each holds (0: none made, none written)."""
-    made = len(poses[0])
+    made = min(len(p) for p in poses)  # streams stopped by Ctrl-C within a batch's frame: all as long
     if made:
-        clips = [np.stack(p) for p in poses]
+        clips = [np.stack(p[:made]) for p in poses]
         if smooth:  # the BVH only: the live lines could not wait for the filter's 15 frames ahead
             clips = [savgol(c, SMOOTH_WINDOW, SMOOTH_ORDER, axis=0) for c in clips]
         with output_set(targets[0].parent):

@@ -25,7 +25,7 @@ from walkdiff.autoregressive.controller import (
     style_weights,
 )
 from walkdiff.autoregressive.keys import RECORD, KeyControl
-from walkdiff.autoregressive.streaming import emit, stopped
+from walkdiff.autoregressive.streaming import StreamEnd, emit, stopped
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder, output_set, read_utf8, write_json
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
@@ -373,8 +373,8 @@ def control(
         **steering,
     )  # fmt: skip
     emit(header(walker))
-    log, failure, started = [], None, time.perf_counter()
-    try:
+    log, end, started = [], StreamEnd(), time.perf_counter()
+    with end.watch():  # a bad line or Ctrl-C: the frames made so far are kept, and written with --out
         for number, text in enumerate(iter(sys.stdin.buffer.readline, b""), 1):
             arrived = time.perf_counter()
             data = json_object(text, where, number, '{"direction": [x, z], "speed": m/s, "style": name}')
@@ -391,17 +391,15 @@ def control(
                 latency = round(1000 * (time.perf_counter() - arrived), 1)
                 for pose in poses:
                     emit(frame_line(pose, walker.fps, latency, characters))
-    except WalkdiffError as error:  # the frames made so far are kept, and written with --out
-        failure = error
     files = []
     if folder is not None and walker.kept:
         manifest = settings(ckpt, walker, style, speed, seed) | {
             "source": "stdin", "frames": walker.frame, "recorded_frames": len(walker.kept),
-            "error": None if failure is None else str(failure), "commands": log,
+            "error": None if end.error is None else str(end.error) or "interrupted", "commands": log,
         }  # fmt: skip
         files = write_takes(folder, walker, manifest)
-    if failure is not None:
-        raise stopped(failure, walker.frame, files)
+    if end.error is not None:
+        raise stopped(end.error, walker.frame, files)
     summary = {
         "done": True, "frames": walker.frame, "recorded_frames": len(walker.kept),
         "wall_s": round(time.perf_counter() - started, 3), "files": [str(f) for f in files],

@@ -428,7 +428,14 @@ def walk_stream(
     the end; with `style_clips`, in their posture and swing as `walk` walks them."""
     import sys
 
-    from walkdiff.autoregressive.streaming import WalkStream, emit, read_growing, read_pipe, stopped
+    from walkdiff.autoregressive.streaming import (
+        StreamEnd,
+        WalkStream,
+        emit,
+        read_growing,
+        read_pipe,
+        stopped,
+    )
 
     follower = PathFollower.load(ckpt)
     model = follower.model
@@ -471,22 +478,20 @@ def walk_stream(
                 "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
             })  # fmt: skip
 
-    failure = None
-    try:
+    end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
+    with end.watch():
         for points in path_points(chunks, path):
             arrived = time.perf_counter()
             _feed(stream, points, unit, path)
             stream.batch.run()
             send(arrived)
         stream.close()
-    except WalkdiffError as error:  # bad input midway: the frames made so far are written, then it fails
-        failure = error
-    stream.batch.run()
+    end.finish(stream.batch.run)
     send(time.perf_counter())
     if raws:
         write_bvh(bvh, model.to_file(to_motion(model, np.stack(raws), stream.start)))
-    if failure is not None:
-        raise stopped(failure, len(raws), [bvh] if raws else [])
+    if end.error is not None:
+        raise stopped(end.error, len(raws), [bvh] if raws else [])
     summary = {
         "done": True, "frames": len(raws), "path_length_m": stream.path.length * unit,
         "speed_m_s": units_per_s * unit, "wall_s": round(time.perf_counter() - started, 3),

@@ -68,8 +68,8 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"walkdiff: error: {error}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("walkdiff: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as stop:  # a stream's says what it wrote before it stopped
+        print("walkdiff: interrupted" + (f"; {stop}" if str(stop) else ""), file=sys.stderr)
         return 130
     except SystemExit as stop:
         # Lightning ends a fit on SIGTERM with a bare SystemExit (status 0): say so, and fail.
