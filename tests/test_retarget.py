@@ -302,3 +302,17 @@ def test_inspect_prints_the_humanoid_map(xia_dir, capsys):
     out = capsys.readouterr().out
     assert "humanoid map (what `walkdiff retarget` uses):" in out
     assert "left_thigh      LeftUpLeg [name]" in out and "right_hand      RightHand [name]" in out
+
+
+def test_the_retarget_command_says_each_note_once(xia_dir, zeggs_dir, tmp_path, capsys):
+    """The report listed the leg ratio and the joints left in their reference pose twice."""
+    from walkdiff.cli.main import main
+
+    out = tmp_path / "zeggs.bvh"
+    to = zeggs_dir / "067_Speech_2_x_1_0.bvh"
+    assert main(["retarget", str(xia_dir / "proud_01_000.bvh"), "--to", str(to), "--out", str(out)]) == 0
+    lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
+    notes = [line for line in lines if line.startswith("note: ") or "reference pose" in line]
+    assert any(n.startswith("note: leg ratio") for n in notes)
+    assert any(n.startswith("note: left in their reference pose: ") for n in notes)
+    assert len(notes) == len(set(notes)) and sum("reference pose:" in n for n in notes) == 1, lines

@@ -56,8 +56,5 @@ def retarget_file(
         f"wrote {out}: {result.motion.num_frames} frames at {result.motion.fps:g} fps on {named} "
         f"({result.motion.skeleton.num_joints} joints), legs {result.leg_ratio:.3f}x the source's"
     ]
-    lines += [f"  {line}" for line in retargeter.describe()]
-    if result.rest_joints:
-        lines.append(f"  left in their reference pose: {', '.join(result.rest_joints)}")
-    lines += [f"  note: {note}" for note in result.notes]
+    lines += [f"  {line}" for line in retargeter.describe()]  # its notes too, each once
     return "\n".join(lines)
