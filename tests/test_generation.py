@@ -527,3 +527,28 @@ def test_memory_benchmark_records_peak_rss_per_frame_count(ckpt, tmp_path):
     assert row == result["sample"][0] and row["frames"] == 60
     assert 100 < row["peak_rss_mb"] < row["estimate_mb"]  # a Python with torch, under the estimate
     assert row["preview"] == "all 2 s" and row["gif_mb"] > 0
+
+
+def test_a_sample_shorter_than_a_window_is_a_whole_windows_start_and_says_so(ckpt, model, tmp_path, capsys):
+    """--frames below one window made a shorter window than the model ever trained on, silently: now one
+    whole window is made and its first frames kept (the same frames as a window's sample from the same
+    seed), and one line says so."""
+    style, content = torch.tensor([4, 0]), torch.zeros(2, dtype=torch.long)
+    whole, short = (
+        generate_long(model, style, content, n, Sampling("ddim", 2), torch.Generator().manual_seed(3))
+        for n in (24, 10)
+    )
+    assert short.shape[1] == 10
+    torch.testing.assert_close(short, whole[:, :10])
+    argv = ["sample", "--ckpt", str(ckpt), "--style", "old", "--num", "1", "--frames", "10", "--no-gif",
+            "--sampler", "ddim", "--steps", "1", "--out", str(tmp_path / "short")]  # fmt: skip
+    assert main(argv) == 0
+    said = (
+        "walkdiff: note: --frames 10 (0.33 s) is less than the model's 24-frame window (0.80 s): one whole "
+        "window is made and its first 10 frames are kept"
+    )
+    assert said in capsys.readouterr().err.splitlines()
+    assert read_bvh(next((tmp_path / "short").glob("*.bvh"))).num_frames == 10
+    argv[argv.index("10")] = "24"
+    assert main([*argv[:-1], str(tmp_path / "whole")]) == 0  # a whole window: nothing to say
+    assert "note:" not in capsys.readouterr().err

@@ -609,8 +609,9 @@ def test_sigint_on_a_walk_stream_process_exits_130_with_its_bvh(walker_ckpt, tmp
     import sys
 
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "walkdiff.cli.main", "--threads", "1", "walk", "--stream", "--ckpt",
-               str(walker_ckpt), "--style", "old", "--speed", "0.7", "--path", "-", "--out", str(out)]  # fmt: skip
+    command = [sys.executable, "-m", "walkdiff.cli.main", "--threads", "1", "walk", "--stream",
+               "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--path", "-",
+               "--out", str(out)]  # fmt: skip
     env = {**os.environ, "WALKDIFF_PROGRESS": "0"}
     process = subprocess.Popen(
         command, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True

@@ -24,7 +24,7 @@ from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
-from walkdiff.styled.generation import Sampling, noised_steps
+from walkdiff.styled.generation import Sampling, noised_steps, short_note
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
 
 
@@ -97,6 +97,9 @@ def sample(
     extra = [timeline_png] if request.timeline is not None else []
     check_free(bvh + previews + extra + [manifest_path], overwrite)
 
+    short = short_note(frames, model.spec["window"], generator.fps)
+    if short is not None:
+        print(f"walkdiff: note: {short}", file=sys.stderr)
     started = time.perf_counter()
     clips = generator.generate(request, num, frames, seed, ground, fix_feet)
     generated = time.perf_counter() - started

@@ -194,6 +194,7 @@ def generate_long(
     window = model.spec["window"]
     overlap, blend = resolve_windows(window, overlap, blend)
     windows = len(window_plan(frames, window, overlap))  # a bad length fails before the bar opens
+    wanted, frames = frames, max(frames, window)  # fewer: the first frames of a whole window (short_note)
     bar = progress(desc="sampling", unit="step")
     hook = step_hook(bar, windows)
 
@@ -213,7 +214,20 @@ def generate_long(
         )
 
     with bar:
-        return windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise, blend)
+        out = windowed(style.shape[0], frames, model.spec["feature_dim"], window, overlap, denoise, blend)
+    return out[:, :wanted]
+
+
+def short_note(frames: int, window: int, fps: float) -> str | None:
+    """What sampling fewer frames than the model's window does, for the user; None for a window or more.
+    A whole window is made and its first frames kept: the model only ever learned whole windows, and a
+    shorter one costs the same steps."""
+    if frames >= window:
+        return None
+    return (
+        f"--frames {frames} ({frames / fps:.2f} s) is less than the model's {window}-frame window "
+        f"({window / fps:.2f} s): one whole window is made and its first {frames} frames are kept"
+    )
 
 
 def noised_steps(model, strength: float, sampling: Sampling) -> tuple[int, list[int], float]:
