@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -287,3 +289,56 @@ def test_bench_protocol_scores_walkdiff_beside_the_baselines(setup, tmp_path):
     assert {s["real"].split("_")[0] for s in stand_ins} == {s["style"] for s in stand_ins}
     table = (tmp_path / "protocol" / "protocol.md").read_text()
     assert "## Style transfer" in table and "| baseline: real target-style clips |" in table
+
+
+def test_evaluate_says_its_plan_and_estimate_first_and_quick_changes_the_protocol(setup, tmp_path, capsys):
+    """Issue 46: the default protocol ran for hours and said nothing of it. Its plan comes before any
+    window, the estimate after the first batch (with what --quick would take); --quick is the quick
+    protocol, its settings replaceable, the same table with intervals."""
+    from walkdiff.evaluation.plan import FULL, QUICK, protocol
+
+    assert protocol(False, None, None, None, None) == FULL
+    assert protocol(True, None, None, None, None) == QUICK
+    assert protocol(True, 32, None, "ddpm", None) == replace(QUICK, num=32, sampler="ddpm", steps=None)
+    assert protocol(True, None, 2, None, 3) == replace(QUICK, repeats=2, steps=3)
+
+    torch.manual_seed(0)
+    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=20)
+    tiny_trainer(max_epochs=1, limit_train_batches=1, limit_val_batches=0).fit(model, dm)
+    ckpt = tmp_path / "generator.ckpt"
+    model.trainer.save_checkpoint(ckpt)
+    args = [
+        "evaluate",
+        "--ckpt",
+        str(ckpt),
+        "--evaluator",
+        str(setup["ckpt"]),
+        "--batch-size",
+        "16",
+        "--stride",
+        "8",
+    ]
+    assert main([*args, "--quick", "--num", "32", "--repeats", "2", "--out", str(tmp_path / "q")]) == 0
+    printed = capsys.readouterr().err
+    err = [line for line in printed.splitlines() if line.startswith("walkdiff: evaluate:")]
+    assert err[0] == (
+        "walkdiff: evaluate: quick protocol: 2 repeats x 32 generated windows (dpmpp-10, 10 network passes "
+        "each, batches of 16), each repeat scored beside as many real windows; the time it needs follows "
+        "the first batch"
+    )
+    assert re.fullmatch(
+        r"walkdiff: evaluate: the first 16 windows took [\d.]+ s: generating all 64 needs about [\d.]+ s "
+        r"on this machine",
+        err[1],
+    ), printed
+    report = json.loads((tmp_path / "q" / "report.json").read_text())
+    assert report["settings"]["protocol"] == "quick" and report["settings"]["sampler"] == "dpmpp"
+    assert report["settings"]["steps"] == 10 and report["estimated_generation_s"] > 0
+    assert report["rows"]["generated"]["fmd"]["n"] == 2 and report["rows"]["generated"]["fmd"]["ci95"] >= 0
+    assert "quick protocol: 32 windows per repeat, 2 repeats" in (tmp_path / "q" / "report.md").read_text()
+    # The full protocol's estimate points at --quick with what it would take.
+    assert main([*args, "--num", "16", "--repeats", "1", "--out", str(tmp_path / "full")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("walkdiff: evaluate:")]
+    assert err[0].startswith("walkdiff: evaluate: protocol: 1 repeats x 16 generated windows (ddpm-20, 20 ")
+    assert re.search(r"; --quick \(10 x 256, dpmpp-10\) would need about [\d.]+ (s|min)$", err[1]), err

@@ -8,6 +8,7 @@ import argparse
 from walkdiff.cli.options import GUIDANCE_HELP, MAX_GUIDANCE, SAMPLER_HELP, SAMPLERS, keyword_options
 from walkdiff.common.arguments import count, number
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.evaluation.plan import FULL, QUICK
 
 
 def add_parsers(sub) -> None:
@@ -49,11 +50,26 @@ def add_parsers(sub) -> None:
     )
     p.add_argument("--evaluator", help="MotionEvaluator checkpoint (walking and action models)")
     p.add_argument("--out", required=True, help="folder for report.json and report.md")
-    p.add_argument("--num", type=count(1), default=1000, help="windows per repeat (default 1000)")
-    p.add_argument("--repeats", type=count(1), default=20, help="repeats (default 20)")
+    p.add_argument(
+        "--quick", action="store_true",
+        help=f"the quick protocol: {QUICK.repeats} repeats x {QUICK.num} windows with {QUICK.sampler} "
+        f"{QUICK.steps} steps, minutes instead of hours (docs/evaluation.md: what it trades); options given "
+        "replace its settings",
+    )  # fmt: skip
+    p.add_argument(
+        "--num", type=count(1), default=None,
+        help=f"windows per repeat (default {FULL.num}; --quick {QUICK.num})",
+    )  # fmt: skip
+    p.add_argument(
+        "--repeats", type=count(1), default=None,
+        help=f"repeats (default {FULL.repeats}; --quick {QUICK.repeats})",
+    )  # fmt: skip
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--real-only", action="store_true", help="only the real reference rows")
-    p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
+    p.add_argument(
+        "--sampler", choices=SAMPLERS, default=None,
+        help=f"{SAMPLER_HELP} (--quick: {QUICK.sampler}, {QUICK.steps} steps)",
+    )  # fmt: skip
     p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
     p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
     p.add_argument("--split", choices=("test", "val"), default="test", help="real reference split")
@@ -87,9 +103,11 @@ def run_evaluate(args: argparse.Namespace) -> None:
     if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
         from walkdiff.autoregressive.gesture import evaluate_gesture
 
+        if args.quick:
+            raise WalkdiffError("--quick is the walking protocol's; for gestures give fewer --repeats")
         evaluate_gesture(
-            args.ckpt, args.out, samples=args.repeats, seed=args.seed, root=args.root,
-            sampler=args.sampler, steps=args.steps,
+            args.ckpt, args.out, samples=args.repeats or FULL.repeats, seed=args.seed, root=args.root,
+            sampler=args.sampler or FULL.sampler, steps=args.steps,
         )  # fmt: skip
         print(f"wrote {args.out}/report.json")
         return

@@ -37,6 +37,12 @@ def progress(
     )
 
 
+def say(line: str) -> None:
+    """A line on stderr, above a bar that is running (a plain print would land at the end of the bar's)."""
+    tqdm.write(line, file=sys.stderr)
+    sys.stderr.flush()
+
+
 def step_hook(bar: tqdm, runs: int = 1) -> Callable[[int, int], None]:
     """A sampler's `progress` hook, hook(steps_done, steps_total), that advances `bar` one step at a time
     over `runs` sampler runs: the bar's total, `runs` times one run's steps, is set at the first step, so

@@ -28,9 +28,10 @@ import torch
 from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import write_json, write_text
-from walkdiff.common.progress import progress
+from walkdiff.common.progress import progress, say
 from walkdiff.data.datamodule import MotionDataModule, data_settings
 from walkdiff.data.datasets import protocol_contents
+from walkdiff.evaluation.plan import Plan, protocol
 from walkdiff.evaluation.scorer import (
     MotionScorer,
     generate_windows,
@@ -60,11 +61,11 @@ def evaluate(
     evaluator: str | Path,
     out: str | Path,
     ckpt: str | Path | None = None,
-    num: int = 1000,
-    repeats: int = 20,
+    num: int | None = None,
+    repeats: int | None = None,
     seed: int = 0,
     real_only: bool = False,
-    sampler: str = "ddpm",
+    sampler: str | None = None,
     steps: int | None = None,
     guidance: float = 1.0,
     ground: bool = True,
@@ -76,9 +77,14 @@ def evaluate(
     batch_size: int = 500,
     device: str = "auto",
     mlflow_experiment: str | None = None,
+    quick: bool = False,
 ) -> dict:
-    """Runs the protocol and writes `out/report.json` and `out/report.md`; returns the report."""
+    """Runs the protocol (`quick`: the quick one; `num`, `repeats`, `sampler` and `steps` given replace
+    its own) and writes `out/report.json` and `out/report.md`; returns the report. Its plan, and once the
+    first batch is timed its cost, are said on stderr first."""
     started = time.perf_counter()
+    run = protocol(quick, num, repeats, sampler, steps)
+    num, repeats, sampler, steps = run.num, run.repeats, run.sampler, run.steps
     if num < 2 or repeats < 1 or stride < 1 or batch_size < 1:
         raise WalkdiffError(
             f"evaluate needs --num >= 2, --repeats >= 1, --stride >= 1 and --batch-size >= 1, "
@@ -107,6 +113,8 @@ def evaluate(
         )
 
     _check_num(num, scorer_model.spec, dm.selection.names)
+    plan = None if model is None else Plan(run, quick, model.diffusion, batch_size)
+    say(plan.describe() if plan else f"walkdiff: evaluate: real rows only: {repeats} repeats x {num} windows")
 
     scorer = MotionScorer(scorer_model, dm.skeleton, spec.fps, batch_size=batch_size)
     reference = scorer.embed(window_set(dm.split_features(split), spec.window, stride))
@@ -119,7 +127,9 @@ def evaluate(
     if model is not None:
         content_ids = [list(model.spec["contents"]).index(name) for name in dm.selection.names]
         sampling = dict(sampler=sampler, steps=steps, guidance=guidance)
-        rows |= _generated_rows(model, scorer, content_ids, num, repeats, seed, batch_size, ground, sampling)
+        rows |= _generated_rows(
+            model, scorer, content_ids, num, repeats, seed, batch_size, ground, sampling, plan.timed
+        )
     draw = torch.Generator().manual_seed(seed)
     for name, pool in ((f"real {split}", reference), (f"real train vs {split}", train)):
         rows[name] = [
@@ -134,6 +144,7 @@ def evaluate(
         "settings": {
             "ckpt": None if ckpt is None else str(ckpt),
             "evaluator": str(evaluator),
+            "protocol": "quick" if quick else "full",
             "num": num,
             "repeats": repeats,
             "seed": seed,
@@ -157,6 +168,7 @@ def evaluate(
         "rows": {name: summarize_runs(runs) for name, runs in rows.items()},
         f"fmd_{split}_halves": summarize(halves, NON_NEGATIVE),
         "elapsed_s": round(time.perf_counter() - started, 1),
+        "estimated_generation_s": None if plan is None else round(plan.estimate_s, 1),
     }
     write_reports(report, Path(out))
     if mlflow_experiment:
@@ -203,16 +215,18 @@ def _generator_and_data(evaluator, ckpt, scorer_model, contents: str | None, dev
 
 def _generated_rows(
     model, scorer: MotionScorer, content_ids: list[int], num: int, repeats: int, seed: int, batch_size: int,
-    ground: bool, sampling: dict,
+    ground: bool, sampling: dict, timed=None,
 ) -> dict[str, list[dict[str, float]]]:  # fmt: skip
     """Scores of `repeats` sets of `num` generated windows: grounded (with `ground`), and the same
-    windows as generated, so that the rows differ by what grounding changes and only that."""
+    windows as generated, so that the rows differ by what grounding changes and only that. `timed`:
+    told the seconds of each batch of the first repeat."""
     generator = torch.Generator(device=model.device).manual_seed(seed)
     rows: dict[str, list[dict[str, float]]] = {"generated": []}
     for repeat in range(repeats):
         windows = generate_windows(
             model, num, content_ids, generator, batch_size, grounded=False,
-            desc=f"generating, repeat {repeat + 1} of {repeats}", **sampling,
+            desc=f"generating, repeat {repeat + 1} of {repeats}", timed=timed if repeat == 0 else None,
+            **sampling,
         )  # fmt: skip
         if ground:
             rows.setdefault("generated, not grounded", []).append(
@@ -236,7 +250,8 @@ def format_report(report: dict) -> str:
         f"- data: {d['dataset']}, contents {', '.join(d['contents'])}, {d['window']}-frame windows at "
         f"{d['fps']:g} fps; {split}: {d['windows'][split]} windows from {d['clips'][split]} clips, "
         f"train: {d['windows']['train']} windows from {d['clips']['train']} clips (stride {s['stride']})",
-        f"- {s['num']} windows per repeat, {s['repeats']} repeats, seed {s['seed']}; "
+        f"- {s['protocol']} protocol: {s['num']} windows per repeat, {s['repeats']} repeats, "
+        f"seed {s['seed']}; "
         f"every value is mean ± 1.96·σ/√{s['repeats']}, or mean [low, high] where that interval is cut "
         "to the metric's range (an accuracy stays in [0, 1])",
         "",

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import importlib
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -188,15 +190,17 @@ def generate_windows(
     batch_size: int,
     grounded: bool = True,
     desc: str = "generating windows",
+    timed: Callable[[int, float], None] | None = None,
     **sampling,
 ) -> WindowSet:
     """`num` raw windows from a generator (`generate`, `to_raw`), grounded unless told otherwise, with a
-    progress bar `desc` over batches x denoising steps."""
+    progress bar `desc` over batches x denoising steps; `timed(windows, seconds)` after each batch."""
     style, content = balanced_labels(num, len(model.spec["styles"]), content_ids)
     raws = []
     with progress(desc=desc, unit="step") as bar:
         hook = step_hook(bar, math.ceil(num / batch_size))
         for i in range(0, num, batch_size):
+            started = time.perf_counter()
             x = model.generate(
                 style[i : i + batch_size].to(model.device),
                 content[i : i + batch_size].to(model.device),
@@ -205,6 +209,8 @@ def generate_windows(
                 **sampling,
             )
             raws.append(torch.from_numpy(model.to_raw(x, grounded)))
+            if timed is not None:
+                timed(len(x), time.perf_counter() - started)
     return WindowSet(torch.cat(raws), style, content, torch.full((num,), -1))
 
 
