@@ -49,6 +49,11 @@ def add_parsers(sub) -> None:
         "--reference-frame", type=count(0), default=None,
         help="the input's frame to align on (default: its rest pose; a standing frame when that is no pose)",
     )  # fmt: skip
+    p.add_argument(
+        "--force", action="store_true",
+        help="retarget a source or target that does not stand like a biped (refused by default, with what "
+        "was measured)",
+    )  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(run=run_retarget)
 
@@ -175,6 +180,7 @@ def run_retarget(args: argparse.Namespace) -> None:
             target_map=args.target_map,
             reference_frame=args.reference_frame,
             overwrite=args.overwrite,
+            force=args.force,
         )  # fmt: skip
     )
 

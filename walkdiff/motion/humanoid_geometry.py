@@ -2,13 +2,14 @@
 
 Limbs are pairs of children of one joint whose subtrees have the same shape (joint count and depth) and
 chain lengths within SYMMETRY of each other, at least LIMB_SHARE of the body long. The legs are the pair
-that branches nearest the root (at the pelvis), the arms the nearest pair below it outside the legs (at
-the spine's top), the head the end of the longest other chain from where the arms branch. Along a leg the
-thigh and shin are the two longest consecutive bones; along an arm the hand is the first joint where the
-chain forks into something shorter than the bone into it (fingers), else its end, with the forearm, upper
-arm and clavicle above it. Sides come from
-names where any joint of a chain has one, else from the pose: left is up x forward, forward the way the
-toes point (the file's +z when there are none, said in the notes).
+that branches nearest the root (at the pelvis) among those whose chains end on the floor where most
+joints touch it (`floor_contacts`: never eye stalks or claws), the arms the nearest pair below it outside
+the legs (at the spine's top), the head the end of the longest other chain from where the arms branch.
+Along a leg the thigh and shin are the two longest consecutive bones; along an arm the hand is the first
+joint where the chain forks into something shorter than the bone into it (fingers), else its end, with
+the forearm, upper arm and clavicle above it. Sides come from names where any joint of a chain has one,
+else from the pose: left is up x forward, forward the way the toes point (the file's +z when there are
+none, said in the notes).
 
 Joints are read through objects with `side` and `helper` (`walkdiff.motion.humanoid.JointName`): helper
 bones (twist, IK, end markers) are never part of a limb's main chain.
@@ -20,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from walkdiff.motion.posed_frames import depth, subtree
+from walkdiff.motion.posed_frames import depth, floor_contacts, subtree
 from walkdiff.motion.skeleton import Skeleton
 
 LIMB_SHARE = 0.25  # a limb chain is at least this share of the longest bone path from the root
@@ -49,7 +50,12 @@ def find_limbs(skeleton: Skeleton, names, pose: np.ndarray, avoid: dict[str, set
     pairs = _symmetric_pairs(skeleton, names, lengths, reach)
     pairs = [p for p in pairs if lengths[p[1]] + reach[p[1]] >= LIMB_SHARE * scale]
     out = Limbs()
-    legs = _pick(skeleton, pairs, avoid.get("arms", set()), inside=None, outside=[])
+    # Legs end on the floor, where the most joints touch it: never eye stalks or claws held out.
+    ends = {j: _main_chain(skeleton, names, lengths, reach, j)[-1] for pair in pairs for j in pair[1:]}
+    contacts = {p: floor_contacts(pose, p[0], [ends[p[1]], ends[p[2]]]) for p in pairs}
+    most = max(contacts.values(), default=0)
+    standing = [p for p in pairs if contacts[p] == most > 0]
+    legs = _pick(skeleton, standing, avoid.get("arms", set()), inside=None, outside=[])
     if legs is None:
         return out
     branch, a, b = legs

@@ -100,6 +100,22 @@ def rest_points(skeleton: Skeleton) -> np.ndarray:
     return np.concatenate([pos, np.reshape(ends, (-1, 3))])
 
 
+CONTACT_SHARE = 0.1  # of the body's extent: how far short of its farthest point a floor contact may end
+
+
+def floor_contacts(pose: np.ndarray, top: int, ends: list[int]) -> int:
+    """How many joints touch the floor the chains from `top` to `ends` would stand on, counting `ends`;
+    0 when `ends` are not (within CONTACT_SHARE of the body's extent) its farthest points the way from
+    `top` to them. Legs stand on a floor the other feet touch too; eye stalks, claws or antennae end short
+    of other parts or alone. `pose`: world positions (J, 3)."""
+    down = pose[ends].mean(axis=0) - pose[top]
+    if np.linalg.norm(down) < 1e-12:
+        return 0
+    along = (pose - pose[top]) @ (down / np.linalg.norm(down))
+    floor = float(along.max()) - CONTACT_SHARE * float(np.ptp(pose, axis=0).max())
+    return int((along >= floor).sum()) if float(along[ends].min()) >= floor else 0
+
+
 def _bone_length(skeleton: Skeleton, top: int, joint: int) -> float:
     """Length along the bones from `top` down to `joint` (a joint below it)."""
     length = 0.0

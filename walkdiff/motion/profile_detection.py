@@ -39,6 +39,7 @@ from walkdiff.motion.mirror import find_mirror_pairs
 from walkdiff.motion.posed_frames import (
     ancestors,
     depth,
+    floor_contacts,
     is_static,
     rest_points,
     subtree,
@@ -200,10 +201,17 @@ def translation_off_offsets(motion: Motion, root: int, tolerance: float) -> list
     return out
 
 
-def _leg_pair(skeleton: Skeleton, pairs: list[tuple[int, int]], root: int) -> tuple[int, int] | None:
-    """The left/right pair nearest the root inside its subtree: the hips of the two legs."""
+def _leg_pair(
+    skeleton: Skeleton, pairs: list[tuple[int, int]], root: int, pose: np.ndarray | None
+) -> tuple[int, int] | None:
+    """The left/right pair nearest the root inside its subtree, among those whose chains end on the floor
+    where most joints touch it in `pose` (J, 3; `floor_contacts`): the hips of the two legs, never eye
+    stalks or claws."""
     body = set(subtree(skeleton, root))
     inside = [p for p in pairs if p[0] in body and p[1] in body]
+    if pose is not None:
+        contacts = {p: floor_contacts(pose, root, [_chain_end(skeleton, j)[-1] for j in p]) for p in inside}
+        inside = [p for p in inside if contacts[p] == max(contacts.values()) > 0]
     return min(inside, key=lambda p: (depth(skeleton, p[0]), p[0])) if inside else None
 
 
@@ -224,9 +232,10 @@ def _chain_end(skeleton: Skeleton, joint: int) -> list[int]:
 
 
 def find_feet(
-    skeleton: Skeleton, pairs: list[tuple[int, int]], root: int
+    skeleton: Skeleton, pairs: list[tuple[int, int]], root: int, pose: np.ndarray | None = None
 ) -> tuple[dict[str, str], str, list[str]]:
-    """{left_heel, left_toe, right_heel, right_toe} joint names, how they were found, notes."""
+    """{left_heel, left_toe, right_heel, right_toe} joint names, how they were found, notes. `pose`: world
+    positions (J, 3) of a posed frame, where legs found from the hierarchy must end on the floor."""
     body = subtree(skeleton, root)
     left = {a for a, _ in pairs}
     right = {b for _, b in pairs}
@@ -249,7 +258,7 @@ def find_feet(
         feet[f"{side}_toe"] = names[toes[0]] if toes else names[heel]
     if len(feet) == 4:
         return feet, "by name", []
-    legs = _leg_pair(skeleton, pairs, root)
+    legs = _leg_pair(skeleton, pairs, root, pose)
     if legs is None:
         return {}, "not found", [NO_FEET]
     out = {}
@@ -373,7 +382,7 @@ class _Detection:
         if len(given) == len(keys):
             self.found["feet"] = "config"
             return given
-        feet, self.found["feet"], notes = find_feet(self.skeleton, pairs, root)
+        feet, self.found["feet"], notes = find_feet(self.skeleton, pairs, root, self.world[0])
         self.notes += notes
         return feet | given
 

@@ -39,6 +39,7 @@ import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import single_thread
+from walkdiff.motion.body_check import check_body
 from walkdiff.motion.footfix import MAX_REACH, ankle_offsets, bend_leg, contact_runs
 from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map, leg_length
 from walkdiff.motion.posed_frames import ancestors, rest_pose_problem
@@ -83,7 +84,8 @@ class Retargeter:
     reference) or a `Motion` (its frame `target_frame` is; None: its rest pose), e.g. a BVH of the
     user's rig. Maps: a `HumanoidMap`, a dict of overrides, or None (found). `reference_frame`: the
     frame of `source` to align on instead of the source's rest pose (by default used only when the
-    rest pose is no pose: then a standing frame is found). Profiles are detected unless given.
+    rest pose is no pose: then a standing frame is found). Profiles are detected unless given. A source
+    or target that does not stand like a biped (`walkdiff.motion.body_check`) is refused unless `force`.
     """
 
     def __init__(
@@ -98,6 +100,7 @@ class Retargeter:
         feet: str = "follow",
         source_profile: SkeletonProfile | None = None,
         target_profile: SkeletonProfile | None = None,
+        force: bool = False,
     ):
         if feet not in FEET_MODES:
             raise WalkdiffError(f"retarget: feet {feet!r}: expected one of {', '.join(FEET_MODES)}")
@@ -109,6 +112,8 @@ class Retargeter:
         self.target_profile = target_profile or SkeletonProfile.detect(frame_clip)
         self.source_map = _map(source, source_map, "the source (the clip's skeleton)")
         self.target_map = _map(frame_clip, target_map, "the target rig")
+        if not force:  # measured on the posed frames: before the source's rest pose is looked at
+            check_body(source, self.source_map, "the source (the clip's skeleton)")
         self.source_ref = _source_reference(
             source, self.source_map, self.source_profile.turn, reference_frame
         )
@@ -122,6 +127,8 @@ class Retargeter:
                 f"retarget: the target's reference pose ({how}) is no pose: {problem}; give the target as a "
                 "clip whose first frame (target_frame) stands"
             )
+        if not force:
+            check_body(frame_clip, self.target_map, "the target rig")
         self.drives, self.links = alignment(self.source_ref, self.target_ref)
         self.leg_ratio = _leg_length(self.target_ref) / _leg_length(self.source_ref)
         # The same in metres: how much farther the target travels than the source.

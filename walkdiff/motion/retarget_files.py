@@ -27,8 +27,10 @@ def retarget_file(
     target_map: str | None = None,
     reference_frame: int | None = None,
     overwrite: bool = False,
+    force: bool = False,
 ) -> str:
-    """Retarget the clip `source` onto `target` and write `out` (.bvh or .glb); returns the report."""
+    """Retarget the clip `source` onto `target` and write `out` (.bvh or .glb); returns the report.
+    `force`: also a source or target that does not stand like a biped."""
     suffix = Path(out).suffix.lower()
     if suffix not in (".bvh", ".glb"):
         raise WalkdiffError("expected an output ending in .bvh or .glb (binary glTF)", path=out)
@@ -45,7 +47,9 @@ def retarget_file(
             ("target", target_map, "--target-map"),
         )
     }
-    retargeter = Retargeter(clip, rig, maps["source"], maps["target"], reference_frame, feet=feet)
+    retargeter = Retargeter(
+        clip, rig, maps["source"], maps["target"], reference_frame, feet=feet, force=force
+    )
     result = retargeter(clip)
     if suffix == ".glb":  # glTF is Y-up in metres: the target's canonical clip, scaled
         profile = retargeter.target_profile
