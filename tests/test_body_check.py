@@ -42,7 +42,7 @@ def test_a_quadruped_with_biped_names_is_refused_naming_what_was_measured(xia):
     assert message.startswith("retarget: the source (the clip's skeleton) does not stand like a biped: ")
     assert "its spine (Bip01_Pelvis to Bip01_Neck) is 80 deg from up" in message
     assert "its hands (Bip01_L_Hand, Bip01_R_Hand) are 8% of a leg above the floor" in message
-    assert message.endswith("pass --force to retarget it anyway") and "\n" not in message
+    assert message.endswith("`walkdiff retarget --force` (force=True) retargets it anyway") and "\n" not in message
     # As the target, too (its first frame), and --force keeps the old behaviour.
     with pytest.raises(WalkdiffError, match="the target rig does not stand like a biped: its spine"):
         Retargeter(xia["strutting_08_002"], dog)

@@ -46,8 +46,8 @@ def check_body(motion: Motion, hmap: HumanoidMap, which: str, most: int = 300) -
     problems = body_problems(positions, motion.skeleton, hmap)
     if problems:
         raise WalkdiffError(
-            f"retarget: {which} does not stand like a biped: {'; '.join(problems)}; pass --force to "
-            "retarget it anyway"
+            f"retarget: {which} does not stand like a biped: {'; '.join(problems)}; `walkdiff retarget "
+            "--force` (force=True) retargets it anyway"
         )
 
 
