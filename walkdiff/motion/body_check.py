@@ -2,8 +2,9 @@
 
 Retargeting moves a human body: a rig whose joints carry human names (a quadruped exported with Biped
 bone names, its front legs on the UpperArm chain) but whose body stands otherwise is refused before any
-motion is moved, with what was measured. Up is the way from the feet to the pelvis (legs hold the pelvis
-up in any standing body, whatever axis the file calls up); at the median over the frames, a biped has:
+motion is moved, with what was measured. Up is the way from the feet to the pelvis, at its median over
+the clip (legs hold the pelvis up in any standing body, whatever axis the file calls up); at the median
+over the frames, a biped has:
 
 - its spine (pelvis to neck, or head) within SPINE_DEGREES of up;
 - its hands at least HANDS_UP of a leg's length above the floor under the feet (arms that reach the floor
@@ -58,13 +59,12 @@ def body_problems(positions: np.ndarray, skeleton: Skeleton, hmap: HumanoidMap) 
     feet = [skeleton.index(hmap.joint(f"{s}_foot")) for s in SIDES]
     legs = {j for s in SIDES for j in subtree(skeleton, skeleton.index(hmap.joint(f"{s}_thigh")))}
     soles = sorted({j for f in feet for j in subtree(skeleton, f)})  # feet, toes and below
-    up = positions[:, pelvis] - positions[:, feet].mean(axis=1)
-    norms = np.linalg.norm(up, axis=1, keepdims=True)
-    keep = norms[:, 0] > 1e-9
-    if not keep.any():
-        return [f"its pelvis {hmap.pelvis} is level with its feet on every frame"]
-    positions, up = positions[keep], up[keep] / norms[keep]
-    heights = np.einsum("fjk,fk->fj", positions, up)
+    # One up for the clip: a crouch or a lean tilts the pelvis over the feet on some frames, not the floor.
+    up = np.median(positions[:, pelvis] - positions[:, feet].mean(axis=1), axis=0)
+    if np.linalg.norm(up) < 1e-9:
+        return [f"its pelvis {hmap.pelvis} is level with its feet"]
+    up = up / np.linalg.norm(up)
+    heights = positions @ up
     floor = heights[:, soles].min(axis=1)
     leg, arm = (
         leg_length(skeleton, hmap),
@@ -73,7 +73,7 @@ def body_problems(positions: np.ndarray, skeleton: Skeleton, hmap: HumanoidMap) 
     problems = []
     top = hmap.neck or hmap.head
     spine = positions[:, skeleton.index(top)] - positions[:, pelvis]
-    cosine = np.sum(spine * up, axis=1) / np.maximum(np.linalg.norm(spine, axis=1), 1e-12)
+    cosine = spine @ up / np.maximum(np.linalg.norm(spine, axis=1), 1e-12)
     angle = float(np.median(np.degrees(np.arccos(np.clip(cosine, -1, 1)))))
     if angle > SPINE_DEGREES:
         problems.append(
