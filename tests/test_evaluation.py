@@ -35,6 +35,17 @@ def setup(xia_dir, tmp_path_factory):
     return {"root": root, "cache": cache, "ckpt": ckpt, "tmp": tmp}
 
 
+def tiny_generator(setup, tmp_path, timesteps: int = 10) -> Path:
+    """A generator fitted on two batches of the subset (its quality does not matter)."""
+    torch.manual_seed(0)
+    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
+    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=timesteps)
+    tiny_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=1).fit(model, dm)
+    ckpt = tmp_path / "generator.ckpt"
+    model.trainer.save_checkpoint(ckpt)
+    return ckpt
+
+
 def test_balanced_labels_cover_every_pair():
     style, content = balanced_labels(48, 8, [0, 3])
     assert torch.bincount(style).tolist() == [6] * 8
@@ -257,12 +268,7 @@ def test_bench_sample_reports_quality_speed_seams_and_transfer(setup, tmp_path):
 def test_bench_protocol_scores_walkdiff_beside_the_baselines(setup, tmp_path):
     from walkdiff.bench.protocol import bench_protocol
 
-    torch.manual_seed(0)
-    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
-    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=10)
-    tiny_trainer(max_epochs=1, limit_train_batches=2, limit_val_batches=1).fit(model, dm)
-    ckpt = tmp_path / "generator.ckpt"
-    model.trainer.save_checkpoint(ckpt)
+    ckpt = tiny_generator(setup, tmp_path)
 
     result = bench_protocol(
         tmp_path / "protocol", ckpt, setup["ckpt"], strengths=(0.5,), samples=16, bootstrap=10
@@ -302,12 +308,7 @@ def test_evaluate_says_its_plan_and_estimate_first_and_quick_changes_the_protoco
     assert protocol(True, 32, None, "ddpm", None) == replace(QUICK, num=32, sampler="ddpm", steps=None)
     assert protocol(True, None, 2, None, 3) == replace(QUICK, repeats=2, steps=3)
 
-    torch.manual_seed(0)
-    dm = tiny_datamodule(setup["root"], setup["cache"], contents="walk")
-    model = StyledMotionDiffusion(dm.spec, d_model=32, layers=1, heads=2, lambda_adv=0.0, timesteps=20)
-    tiny_trainer(max_epochs=1, limit_train_batches=1, limit_val_batches=0).fit(model, dm)
-    ckpt = tmp_path / "generator.ckpt"
-    model.trainer.save_checkpoint(ckpt)
+    ckpt = tiny_generator(setup, tmp_path, timesteps=20)
     args = [
         "evaluate",
         "--ckpt",
