@@ -20,7 +20,8 @@ from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.rigs import RIGS
 
 SAME = 5  # same-proportion cases
-OTHER = ["legs 0.8x", "legs 1.25x", "arms 1.2x", "longer spine (+2 joints)"]
+OTHER = ["legs 0.8x", "legs 1.25x", "arms 1.2x", "longer spine (+2 joints)", "hips 0.6x", "hips 1.6x"]
+OTHER += ["big: 1.5x, hips 1.3x"]
 REAL = [*(f"xia -> {name}" for name in RIGS), "xia -> zeggs", "zeggs -> xia", "xia -> zeggs -> xia"]
 
 

@@ -3,7 +3,7 @@
 Same proportions (`reframe`, `reposed`, `random_frames`, `axes_and_units`, `rotation_order`): the copy
 holds the same motion with other rest poses, local frames, axes, units or channels, so a retargeter must
 give back the source's world joint positions (up to the known turn and scale). Other proportions
-(`legs`, `arms`, `longer_spine`, `merged`): only the bone lengths or the joint count change, so bone
+(`legs`, `arms`, `hips`, `longer_spine`, `merged`): only the bone lengths or the joint count change, so bone
 directions must follow the source's. Limbs and the spine are found by the humanoid map's roles, so
 every builder works on any humanoid rig, not only Xia's.
 """
@@ -163,6 +163,23 @@ def legs(skeleton: Skeleton, factor: float) -> Skeleton:
 def arms(skeleton: Skeleton, factor: float) -> Skeleton:
     """Every bone below the upper arms (forearm, hand, fingers) `factor` times as long."""
     return scaled(skeleton, _below(skeleton, "upper_arm"), factor)
+
+
+def hips(skeleton: Skeleton, factor: float) -> Skeleton:
+    """The hips `factor` times as wide: the bones from the pelvis to each thigh stretched sideways (along
+    the rest pose's right-to-left line between the thighs), the legs themselves kept: another
+    hip-width-to-leg ratio."""
+    m = humanoid_map(skeleton)
+    rest = rest_points(skeleton)
+    thighs = [skeleton.index(m.joint(f"{side}_thigh")) for side in SIDES]
+    across = rest[thighs[0]] - rest[thighs[1]]
+    across /= max(np.linalg.norm(across), 1e-12)
+    offsets, pelvis = skeleton.offsets.copy(), skeleton.index(m.pelvis)
+    for joint in thighs:
+        while joint != pelvis:  # offsets are in rest (identity) frames: the world's directions
+            offsets[joint] += (factor - 1) * (offsets[joint] @ across) * across
+            joint = int(skeleton.parents[joint])
+    return _skeleton(skeleton, offsets)
 
 
 def inserted(skeleton: Skeleton, child: str, name: str) -> Skeleton:
