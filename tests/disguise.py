@@ -633,8 +633,9 @@ def turn_labels(xia_dir: str | Path, clips: Iterable, degrees: float) -> tuple[d
     """Content labels and splits by how each walk really turns (Xia's content ids do not tell: about half
     of `walk_lturn_l1` turns right): `walk-turn-left` beyond `degrees` to the body's left over the clip,
     `walk-turn-right` beyond it to the right, `walk` within `STRAIGHT_DEG`; clips in between are left
-    out. Split: the first clip by name of each style and label with three or more is the test clip.
-    Returns ({file: label}, {file: split})."""
+    out. Split: the first clip by name of each style and label with three or more is the test clip, the
+    second of those with four or more the validation clip (so a scanned folder validates and its
+    metrics callback measures while training). Returns ({file: label}, {file: split})."""
     from walkdiff.data.xia import PROFILE
     from walkdiff.motion.profile import SkeletonProfile
     from walkdiff.motion.representation import FeatureLayout, encode
@@ -659,6 +660,8 @@ def turn_labels(xia_dir: str | Path, clips: Iterable, degrees: float) -> tuple[d
     for names in groups.values():
         if len(names) >= 3:
             splits[names[0]] = "test"
+        if len(names) >= 4:
+            splits[names[1]] = "val"
     return labels, splits
 
 

@@ -16,7 +16,7 @@ def add_parsers(sub) -> None:
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     for add in (
         add_data, add_train, add_gesture, add_stream, add_memory, add_view, add_walk, add_distill, add_sample,
-        add_protocol, add_style, add_retarget, add_play, add_turns,
+        add_protocol, add_style, add_retarget, add_play, add_turns, add_ablate,
     ):  # fmt: skip
         add(bench)
     for b in bench.choices.values():
@@ -68,6 +68,30 @@ def run_data(args: argparse.Namespace) -> None:
     from walkdiff.bench.data import bench_data
 
     bench_data(args.out, args.dataset, args.root)
+
+
+def add_ablate(bench) -> None:
+    b = bench.add_parser(
+        "ablate", help="variants of a config trained at one batch budget and scored alike, in one table"
+    )
+    b.add_argument("--out", required=True, help="folder: a sub-folder per variant, ablation.json and .md")
+    b.add_argument("--config", required=True, help="the training config the variants change")
+    b.add_argument("--grid", required=True, help="YAML naming the variants (conf/ablation/*.yaml)")
+    b.add_argument("--evaluator", default=None, help="default: the config's metrics callback's")
+    b.add_argument("--only", default=None, help="comma-separated variant names to run (default: all)")
+    b.set_defaults(run=run_ablate)
+
+
+def run_ablate(args: argparse.Namespace) -> None:
+    import torch
+
+    from walkdiff.bench.ablate import bench_ablate
+
+    only = args.only.split(",") if args.only else None
+    result = bench_ablate(
+        args.out, args.config, args.grid, args.evaluator, only, torch.get_num_threads(), args.overwrite
+    )
+    print(f"{len(result['variants'])} variants in {args.out}/ablation.md")
 
 
 def add_train(bench) -> None:
