@@ -389,8 +389,9 @@ def tiny_evaluator(root: Path, path: Path) -> Path:
 
 
 def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_path, monkeypatch):
-    """`walkdiff bench ablate`: two trained variants at one budget, one scored otherwise from the first's
-    model; every figure a ratio to real with its interval; a second call resumes without training."""
+    """`walkdiff bench ablate`: a variant trained at the grid's budget and one scored otherwise from its
+    model; every figure a ratio to real with its interval; a second call resumes without training; a
+    suite (`bench train --to-bar --suite`) of folders, each with its config and overrides."""
     from walkdiff.bench.ablate import BAR
     from walkdiff.cli.main import main
 
@@ -410,20 +411,13 @@ def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_pa
         "variants:\n"
         "  - {name: baseline, factor: baseline}\n"
         "  - {name: guided, factor: guidance, from: baseline, evaluate: {guidance: 2.0}}\n"
-        "  - {name: no-adv, factor: adversarial term, fit: [--model.lambda_adv, '0']}\n"
     )
     args = ["bench", "ablate", "--config", str(config), "--grid", str(grid), "--out", "abl"]
     assert main(args) == 0
     result = json.loads((tmp_path / "abl" / "ablation.json").read_text())
     rows = {v["name"]: v for v in result["variants"]}
-    assert list(rows) == ["baseline", "guided", "no-adv"]
-    assert (
-        rows["baseline"]["batches"] == rows["no-adv"]["batches"] == 4
-    )  # the grid's budget, not the config's 6
-    assert json.loads(Path("abl/no-adv/train.json").read_text())["fit_args"][:2] == [
-        "--model.lambda_adv",
-        "0",
-    ]
+    assert list(rows) == ["baseline", "guided"]
+    assert rows["baseline"]["batches"] == 4  # the grid's budget, not the config's 6
     assert json.loads(Path("abl/guided/eval/report.json").read_text())["settings"]["guidance"] == 2.0
     assert not Path("abl/guided/train.json").exists()  # scored from the baseline's model
     for row in rows.values():
@@ -439,6 +433,23 @@ def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_pa
     stamp = Path("abl/baseline/train.json").stat().st_mtime_ns
     assert main(args) == 0
     assert Path("abl/baseline/train.json").stat().st_mtime_ns == stamp
+    # A suite: each entry names its folder's config; finished entries of the same folder are kept.
+    other = tmp_path / "other.yaml"
+    other.write_text(config.read_text())
+    suite = tmp_path / "suite.yaml"
+    suite.write_text(
+        "budget: 4\nevaluate: {num: 16, repeats: 2, sampler: ddim, steps: 2}\nvariants:\n"
+        f"  - {{name: baseline, factor: tiny, config: {config}}}\n"
+        f"  - {{name: other, factor: other folder, config: {other}, fit: [--model.lambda_adv, '0']}}\n"
+    )
+    args_suite = ["bench", "train", "--to-bar", "--suite", str(suite), "--out", "abl"]
+    assert main(args_suite) == 0
+    assert Path("abl/baseline/train.json").stat().st_mtime_ns == stamp
+    table = (tmp_path / "abl" / "ablation.md").read_text()
+    assert f"| `{other}` | other folder | other | 4 |" in table
+    fit_args = json.loads(Path("abl/other/train.json").read_text())["fit_args"]
+    assert fit_args[:2] == ["--model.lambda_adv", "0"]
+    assert json.loads(Path("abl/other/train.json").read_text())["fit_args"][:2] == ["--model.lambda_adv", "0"]
     # A grid naming a variant that does not exist, or a `from` that is not trained before it.
     grid.write_text("variants:\n  - {name: a, from: b}\n")
     assert main(args) == 1

@@ -45,7 +45,17 @@ BAR = {
 TURN_TOLERANCE = 0.2
 TURNING_DEG_S = 10.0  # a label whose real windows turn faster than this on average is a turning label
 EVALUATE_DEFAULTS = {"num": 384, "repeats": 3, "sampler": "ddpm", "steps": None, "guidance": 1.0}
-VARIANT_KEYS = {"name", "factor", "fit", "from", "evaluate", "budget"}
+VARIANT_KEYS = {
+    "name",
+    "factor",
+    "fit",
+    "from",
+    "evaluate",
+    "budget",
+    "config",
+    "evaluator",
+    "evaluator_config",
+}
 
 
 def read_grid(path: str | Path) -> dict:
@@ -80,7 +90,7 @@ def read_grid(path: str | Path) -> dict:
                 raise WalkdiffError(
                     f"{where}: from {variant['from']!r} names no earlier trained variant", path=path
                 )
-            if "fit" in variant or "budget" in variant:
+            if {"fit", "budget", "config", "evaluator", "evaluator_config"} & set(variant):
                 raise WalkdiffError(
                     f"{where}: a variant `from` another reuses its model: no fit or budget", path=path
                 )
@@ -96,16 +106,18 @@ def read_grid(path: str | Path) -> dict:
 
 def bench_ablate(
     out_dir: str | Path,
-    config: str,
+    config: str | None,
     grid_file: str | Path,
     evaluator: str | None = None,
     only: list[str] | None = None,
     threads: int | None = None,
     overwrite: bool = False,
 ) -> dict:
-    """Trains and scores every variant of GRID on CONFIG, then writes OUT_DIR/ablation.json and
-    OUT_DIR/ablation.md. A variant with finished files is kept (a stopped ablation resumes), unless
-    `overwrite`: then the variants run (all, or `only`) are trained and scored again."""
+    """Trains and scores every variant of GRID (on CONFIG, or each on the `config` it names), then writes
+    OUT_DIR/ablation.json and OUT_DIR/ablation.md. A variant with finished files is kept (a stopped
+    ablation resumes), unless `overwrite`: then the variants run (all, or `only`) are trained and scored
+    again. A variant's evaluator is `evaluator`, else its own `evaluator`, else its config's metrics
+    callback's; one that does not exist yet is trained first from the variant's `evaluator_config`."""
     grid = read_grid(grid_file)
     out_dir = Path(out_dir)
     names = [v["name"] for v in grid["variants"]]
@@ -114,18 +126,44 @@ def bench_ablate(
             raise WalkdiffError(
                 f"--only: no variant {name!r} in the grid ({', '.join(names)})", path=grid_file
             )
-    evaluator = evaluator or _config_evaluator(config)
     by_name = {v["name"]: v for v in grid["variants"]}
+    for variant in grid["variants"]:
+        trained = by_name[variant.get("from", variant["name"])]
+        trained.setdefault("config", config)
+        if trained["config"] is None:
+            raise WalkdiffError(
+                f"variant {trained['name']!r} names no config, and no --config is given", path=grid_file
+            )
     for variant in grid["variants"]:
         if only and variant["name"] not in only:
             continue
         if overwrite:
             shutil.rmtree(out_dir / variant["name"], ignore_errors=True)
         trained = by_name[variant.get("from", variant["name"])]
-        _train(out_dir, config, trained, grid.get("budget", 1800), evaluator, threads)
+        judge = evaluator or trained.get("evaluator") or _config_evaluator(trained["config"])
+        if not Path(judge).is_file():
+            _train_evaluator(trained, judge, out_dir, threads, grid_file)
+        _train(out_dir, trained, grid.get("budget", 1800), judge, threads)
         settings = EVALUATE_DEFAULTS | (grid.get("evaluate") or {}) | (variant.get("evaluate") or {})
-        _evaluate(out_dir, variant["name"], trained["name"], settings, evaluator, threads)
+        _evaluate(out_dir, variant["name"], trained["name"], settings, judge, threads)
     return collect(out_dir, config, grid, grid_file)
+
+
+def _train_evaluator(variant: dict, evaluator: str, out_dir: Path, threads, grid_file) -> None:
+    if "evaluator_config" not in variant:
+        raise WalkdiffError(
+            f"variant {variant['name']!r}: its evaluator {evaluator} does not exist; train it, or name its "
+            "config as evaluator_config",
+            path=grid_file,
+        )
+    _walkdiff(
+        ["fit", "--config", variant["evaluator_config"]], out_dir / variant["name"] / "evaluator.log", threads
+    )
+    if not Path(evaluator).is_file():
+        raise WalkdiffError(
+            f"variant {variant['name']!r}: {variant['evaluator_config']} did not write {evaluator}",
+            path=grid_file,
+        )
 
 
 def _config_evaluator(config: str) -> str:
@@ -150,13 +188,14 @@ def _walkdiff(args: list[str], log: Path, threads: int | None) -> None:
         raise WalkdiffError(f"`{' '.join(command[2:])}` failed with exit status {done.returncode}", path=log)
 
 
-def _train(out_dir: Path, config: str, variant: dict, budget: int, evaluator: str, threads) -> None:
+def _train(out_dir: Path, variant: dict, budget: int, evaluator: str, threads) -> None:
     report = out_dir / variant["name"] / "train.json"
     if report.is_file() and json.loads(report.read_text()).get("finished"):
         return
     report.unlink(missing_ok=True)  # an unfinished run is trained again from the start
     budget = variant.get("budget", budget)
     fit = [str(a) for a in variant.get("fit", [])]
+    config = variant["config"]
     run_name = f"{Path(config).stem}-{variant['name']}"
     args = [
         "bench",
@@ -251,6 +290,9 @@ def figures(train: dict, evaluation: dict) -> dict:
         {k: m[k] for k in ("batches", "fmd", "style_acc", "skate_ratio")} for m in train["measurements"]
     ]
     row["evaluate_s"] = evaluation["elapsed_s"]
+    # The metrics callback's bar (style, FMD, skating; its own smaller samples): from which batch it holds.
+    held = (train.get("time_to_bar") or {}).get("from_then_on")
+    row["callback_bar_from"] = None if held is None else {k: held[k] for k in ("batches", "training_s")}
     return row
 
 
@@ -284,10 +326,12 @@ def collect(out_dir: Path, config: str, grid: dict, grid_file) -> dict:
         )
         if not (train.is_file() and evaluation.is_file()):
             continue
-        row = figures(json.loads(train.read_text()), json.loads(evaluation.read_text()))
+        train = json.loads(train.read_text())
+        row = figures(train, json.loads(evaluation.read_text()))
         table.append(
             {
                 "name": variant["name"],
+                "config": train["config"],
                 "factor": variant.get("factor", variant["name"]),
                 "fit": [str(a) for a in variant.get("fit", [])],
                 "from": variant.get("from"),
@@ -322,11 +366,14 @@ def _cell(ratio: dict | None) -> str:
 def format_table(result: dict) -> str:
     """Markdown: one row a variant, each figure as a ratio to real [its 95% interval]."""
     labels = sorted({label for v in result["variants"] for label in v["turns"]})
+    configs = len({v["config"] for v in result["variants"]}) > 1  # a suite: one row a folder
     head = [
+        *(["config"] if configs else []),
         "factor",
         "variant",
         "batches",
         "s/batch",
+        "callback bar from",
         "FMD",
         "FMD / floor",
         "style",
@@ -336,20 +383,25 @@ def format_table(result: dict) -> str:
         *[f"turn {label}" for label in labels],
         "at bar",
     ]
+    text = "" if configs else f"Config `{result['config']}`, "
     lines = [
-        f"Config `{result['config']}`, grid `{result['grid']}`; evaluate: {result['evaluate']}.",
-        "Ratios to real held-out windows scored alike [95% interval]; FMD as mean ± 1.96·σ/√repeats.",
+        f"{text}grid `{result['grid']}`; evaluate: {result['evaluate']}.",
+        "Ratios to real held-out windows scored alike [95% interval]; FMD as mean ± 1.96·σ/√repeats. "
+        "Callback bar from: the batch (and training minutes) from which the metrics callback's style, FMD "
+        "and skating stayed at the bar.",
         "",
         "| " + " | ".join(head) + " |",
-        "|---|---|" + "---:|" * (len(head) - 2),
+        "|---|---|" + ("---|" if configs else "") + "---:|" * (len(head) - 2 - configs),
     ]
     for v in result["variants"]:
-        fmd = v["fmd"]
+        fmd, held = v["fmd"], v["callback_bar_from"]
         cells = [
+            *([f"`{v['config']}`"] if configs else []),
             v["factor"],
             v["name"],
             str(v["batches"]),
             f"{v['s_per_batch']:.2f}" if v["s_per_batch"] else "–",
+            "–" if held is None else f"{held['batches']} ({held['training_s'] / 60:.1f} min)",
             f"{fmd['mean']:.1f} ± {fmd['ci95']:.1f}",
             _cell(v["fmd_floor"]),
             _cell(v.get("style")),

@@ -114,7 +114,8 @@ def command_output(args: argparse.Namespace) -> tuple[Path, tuple[str, ...]] | N
     """
     if args.command == "convert":
         return Path(args.output), ()
-    if args.command == "bench" and args.what == "ablate":  # resumes its folder; --overwrite trains again
+    resumable = args.command == "bench" and (args.what == "ablate" or getattr(args, "suite", None))
+    if resumable:  # a folder of variants it resumes; --overwrite trains them again
         return Path(args.out), ()
     if args.command == "bench":
         folder = args.what in BENCH_FOLDERS
