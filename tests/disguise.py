@@ -633,8 +633,9 @@ def turn_labels(xia_dir: str | Path, clips: Iterable, degrees: float) -> tuple[d
     """Content labels and splits by how each walk really turns (Xia's content ids do not tell: about half
     of `walk_lturn_l1` turns right): `walk-turn-left` beyond `degrees` to the body's left over the clip,
     `walk-turn-right` beyond it to the right, `walk` within `STRAIGHT_DEG`; clips in between are left
-    out. Split: the first clip by name of each style and label with three or more is the test clip.
-    Returns ({file: label}, {file: split})."""
+    out. Split: the first clip by name of each style and label with three or more is the test clip, the
+    second of those with four or more the validation clip (so a scanned folder validates and its
+    metrics callback measures while training). Returns ({file: label}, {file: split})."""
     from walkdiff.data.xia import PROFILE
     from walkdiff.motion.profile import SkeletonProfile
     from walkdiff.motion.representation import FeatureLayout, encode
@@ -659,7 +660,24 @@ def turn_labels(xia_dir: str | Path, clips: Iterable, degrees: float) -> tuple[d
     for names in groups.values():
         if len(names) >= 3:
             splits[names[0]] = "test"
+        if len(names) >= 4:
+            splits[names[1]] = "val"
     return labels, splits
+
+
+# Xia's one-off actions that name a side, by content id: lateral labels of another lab's export.
+SIDED_ACTIONS = {18: "punch-right", 19: "punch-left", 20: "punch-right", 21: "punch-left",
+                 22: "kick-left", 23: "kick-right"}  # fmt: skip
+
+
+def action_labels(clips: Iterable) -> dict[str, str]:
+    """Content labels of Xia's clips that are not walks: punches and kicks by the side they strike with
+    (`punch-left` ... `kick-right`, from the content ids), the other actions by their group."""
+    labels = {}
+    for clip in clips:
+        content = int(_XIA_NAME.match(clip.name).group(2))
+        labels[f"{clip.name}.bvh"] = SIDED_ACTIONS.get(content) or xia_labels(clip.name)[1]
+    return labels
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -687,7 +705,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         type=float,
         default=None,
         help="label the walks by how they turn instead (walk-turn-left / walk-turn-right beyond this many "
-        f"degrees, walk within {STRAIGHT_DEG:g}, the others left out), a test clip per style and label",
+        f"degrees, walk within {STRAIGHT_DEG:g}, the others left out), a test clip per style and label; "
+        "with other contents, punches and kicks by their side (punch-left ... kick-right)",
     )
     args = parser.parse_args(argv)
     clips = xia.list_clips(Path(args.xia_dir))
@@ -696,7 +715,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     contents = None
     if args.turns is not None:
         walks = [c for members in splits.values() for c in members if xia.GROUPS[c.content] == "walk"]
-        contents, split_of = turn_labels(args.xia_dir, walks, args.turns)
+        contents, turn_splits = turn_labels(args.xia_dir, walks, args.turns)
+        # Other contents selected (--contents all): actions, sided ones by their side, in Xia's split.
+        actions = [c for members in splits.values() for c in members if xia.GROUPS[c.content] != "walk"]
+        contents |= action_labels(actions)
+        split_of = turn_splits | {f"{c.name}.bvh": split_of[f"{c.name}.bvh"] for c in actions}
     record = disguised_folder(
         args.xia_dir, args.out_dir, sorted(split_of), args.steps.split(","), splits=split_of,
         speeds=[float(s) for s in args.speeds.split(",")], contents=contents,

@@ -125,6 +125,33 @@ def test_resampling_to_the_configured_rate(tmp_path):
     assert {f.shape[0] for f in processed.features} == {60}  # 2 s at 120 fps -> 60 frames at 30 fps
 
 
+def test_balanced_batches_draw_a_rare_content_as_often_as_a_common_one(tmp_path):
+    """data.balance content: 8 training walks and 2 training runs per style, drawn about half and half;
+    `none` keeps each window once an epoch (the run's share as in the data); the same draw for the same
+    seed and epoch."""
+    folder = synthetic.xia_like_folder(tmp_path, walk_clips=12, frames=240)
+    for style in ("angry", "old"):  # 4 runs: one held out for test, one for val, two to train on
+        for take in range(1, 4):
+            synthetic.write_bvh(folder / f"{style}_13_{take:03d}.bvh", synthetic.walking(240, seed=50 + take))
+    shares = {}
+    for balance in ("none", "content", "cell"):
+        dm = MotionDataModule(
+            root=str(tmp_path), cache_dir=str(tmp_path / "c"), contents="all", stride=2, batch_size=8,
+            preprocess_workers=1, balance=balance,
+        )  # fmt: skip
+        dm.setup()
+        loader = dm.train_dataloader()
+        drawn = list(loader.sampler)
+        assert len(drawn) == len(dm.datasets["train"]) and drawn == list(loader.sampler)  # seeded
+        contents = collections.Counter(
+            dm.datasets["train"].labels[dm.datasets["train"].index[i][0]][1] for i in drawn
+        )
+        shares[balance] = contents[1] / len(drawn)  # the run (content group 1)
+    assert shares["none"] < 0.25 and 0.35 < shares["content"] < 0.65 and 0.35 < shares["cell"] < 0.65
+    with pytest.raises(WalkdiffError, match="data.balance: expected one of none, content, cell"):
+        MotionDataModule(root=str(tmp_path), cache_dir=str(tmp_path / "c"), balance="styles")
+
+
 def test_missing_root_names_the_path_and_how_to_get_data(tmp_path):
     with pytest.raises(WalkdiffError) as error:
         MotionDataModule(root=str(tmp_path / "nowhere"))

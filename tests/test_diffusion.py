@@ -404,3 +404,18 @@ def test_generator_repeatability_and_progress():
     ddim_sample(model_fn, diff, (2, 6), steps=4, progress=lambda done, total: hook.append((done, total)))
     assert hook == [(1, 4), (2, 4), (3, 4), (4, 4)]
     ddim_sample(model_fn, diff, (2, 6), steps=3, progress=True)
+
+
+@pytest.mark.parametrize("prediction", ["x0", "eps", "v"])
+def test_min_snr_weights_cap_the_x0_error_weight_at_gamma(prediction):
+    """Min-SNR-γ: the x0 error's effective weight is min(SNR, γ) (up to the normalising mean)."""
+    diffusion = GaussianDiffusion(100, "linear", 1e-3, 0.2, prediction)
+    t = torch.arange(100)
+    weights = diffusion.min_snr_weights(t, 5.0).double()
+    assert weights.mean().item() == pytest.approx(1.0, rel=1e-5)
+    abar = diffusion.alphas_cumprod.double()
+    snr = abar / (1 - abar)
+    x0_factor = {"x0": torch.ones_like(snr), "eps": snr, "v": snr + 1}[prediction]
+    effective = weights * x0_factor  # the weight of the x0 error the output error stands for
+    expected = snr.clamp(max=5.0)
+    assert torch.allclose(effective / effective[-1], expected / expected[-1], rtol=1e-4)

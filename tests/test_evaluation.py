@@ -131,10 +131,38 @@ def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path, capsy
     # An untrained generator is far from the real data.
     assert generated["fmd"]["mean"] > report["rows"]["real test"]["fmd"]["mean"]
     assert "| generated |" in (out / "report.md").read_text()
+    # Per content label, generated beside real: signed turn rate, multimodality and skating.
+    walk = report["per_content"]["walk"]
+    assert set(walk) == {"generated", "real test", "real train vs test"}
+    assert {"turn_deg_s", "multimodality"} <= set(walk["generated"]) and walk["generated"]["windows"] == 16
+    assert "| walk | generated | 16 |" in (out / "report.md").read_text()
     assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(out)]) == 1
     assert "report.json" in capsys.readouterr().err  # an earlier report is not replaced unasked
     assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(tmp_path / "other")]) == 1
     assert "--evaluator is required" in capsys.readouterr().err
+
+
+def test_per_content_reads_each_labels_signed_turn_rate(setup):
+    """Windows of one label turning left at 30 degrees/s and another turning right at 60 are told apart:
+    a pooled turn rate would average them to a left turn of -15."""
+    from walkdiff.evaluation.scorer import MotionScorer, load_evaluator
+    from walkdiff.motion.representation import FeatureLayout
+
+    dm = tiny_datamodule(setup["root"], setup["cache"])
+    windows = window_set(dm.split_features("train"), dm.spec.window, stride=8)
+    raw = windows.raw.clone()
+    left = torch.arange(len(raw)) % 2 == 0
+    rate = torch.where(left, torch.tensor(30.0), torch.tensor(-60.0))  # degrees per second
+    raw[:, :, FeatureLayout.heading_vel.start] = torch.deg2rad(rate)[:, None] / dm.spec.fps
+    windows = WindowSet(raw, windows.style, left.long(), windows.clip)
+    evaluator = load_evaluator(setup["ckpt"])
+    scorer = MotionScorer(evaluator, dm.skeleton, dm.spec.fps)
+    embedded = scorer.embed(windows)
+    scorer.set_reference(embedded)
+    rows = scorer.per_content(embedded)
+    assert rows[1]["turn_deg_s"] == pytest.approx(30.0, abs=1e-3)
+    assert rows[0]["turn_deg_s"] == pytest.approx(-60.0, abs=1e-3)
+    assert rows[0]["windows"] + rows[1]["windows"] == len(windows) and rows[1]["multimodality"] > 0
 
 
 def test_evaluate_refuses_a_num_too_small_before_any_window_is_made(setup, tmp_path, capsys, monkeypatch):

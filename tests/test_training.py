@@ -370,17 +370,13 @@ def test_bar_rows_find_the_first_measurement_at_bar_and_the_one_from_which_it_st
     assert _first(rows[:1], "at_bar") == {"first": None, "from_then_on": None}
 
 
-def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path, monkeypatch):
-    """`walkdiff bench train --to-bar` on a tiny config: its measurements, their times and the bar."""
-    from mlflow import MlflowClient
-
-    from walkdiff.bench.time_to_bar import BAR
-    from walkdiff.cli.main import main
+def tiny_evaluator(root: Path, path: Path) -> Path:
+    """An evaluator trained one epoch on the tiny folder (its accuracy does not matter), saved at `path`."""
     from walkdiff.models.evaluator import MotionEvaluator
 
     L.seed_everything(0)
     dm = MotionDataModule(
-        root=str(tiny_root), cache_dir=str(tiny_root / "cache"), contents="all", batch_size=8, window=24,
+        root=str(root), cache_dir=str(root / "cache"), contents="all", batch_size=8, window=24,
         preprocess_workers=1,
     )  # fmt: skip
     trainer = L.Trainer(
@@ -388,9 +384,85 @@ def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path
         enable_model_summary=False, limit_val_batches=1, num_sanity_val_steps=0,
     )  # fmt: skip
     trainer.fit(MotionEvaluator(dm.spec, hidden=16, embed_dim=8, blocks=1), dm)
-    evaluator = tmp_path / "evaluator.ckpt"
-    trainer.save_checkpoint(evaluator)
+    trainer.save_checkpoint(path)
+    return path
 
+
+def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_path, monkeypatch):
+    """`walkdiff bench ablate`: a variant trained at the grid's budget and one scored otherwise from its
+    model; every figure a ratio to real with its interval; a second call resumes without training; a
+    suite (`bench train --to-bar --suite`) of folders, each with its config and overrides."""
+    from walkdiff.bench.ablate import BAR
+    from walkdiff.cli.main import main
+
+    evaluator = tiny_evaluator(tiny_root, tmp_path / "evaluator.ckpt")
+    monkeypatch.chdir(tmp_path)
+    metrics = {
+        "class_path": "walkdiff.callbacks.metrics.MotionMetrics",
+        "init_args": {"evaluator_ckpt": str(evaluator), "every_n_steps": 2, "num_samples": 16,
+                      "sampler": "ddim", "steps": 2, "batch_size": 16},
+    }  # fmt: skip
+    config = tmp_path / "abl.yaml"
+    config.write_text(probes.tiny_fit_config(tiny_root, "abl", epochs=3, batches=2, callbacks=[metrics]))
+    grid = tmp_path / "grid.yaml"
+    grid.write_text(
+        "budget: 4\n"
+        "evaluate: {num: 16, repeats: 2, sampler: ddim, steps: 2}\n"
+        "variants:\n"
+        "  - {name: baseline, factor: baseline}\n"
+        "  - {name: guided, factor: guidance, from: baseline, evaluate: {guidance: 2.0}}\n"
+    )
+    args = ["bench", "ablate", "--config", str(config), "--grid", str(grid), "--out", "abl"]
+    assert main(args) == 0
+    result = json.loads((tmp_path / "abl" / "ablation.json").read_text())
+    rows = {v["name"]: v for v in result["variants"]}
+    assert list(rows) == ["baseline", "guided"]
+    assert rows["baseline"]["batches"] == 4  # the grid's budget, not the config's 6
+    assert json.loads(Path("abl/guided/eval/report.json").read_text())["settings"]["guidance"] == 2.0
+    assert not Path("abl/guided/train.json").exists()  # scored from the baseline's model
+    for row in rows.values():
+        for name in BAR:
+            ratio = row[name]  # None where real has no reference value (tiny data: no real skating)
+            assert ratio is None or ratio["low"] <= ratio["value"] <= ratio["high"]
+        assert row["fmd_floor"]["value"] > 0
+        assert row["at_bar"]["all"] == all(ok for k, ok in row["at_bar"].items() if k != "all")
+        assert [m["batches"] for m in row["curve"]] == [2, 4]
+    table = (tmp_path / "abl" / "ablation.md").read_text()
+    assert "| guidance | guided | 4 |" in table
+    # Resumed: nothing is trained again; the table is the same.
+    stamp = Path("abl/baseline/train.json").stat().st_mtime_ns
+    assert main(args) == 0
+    assert Path("abl/baseline/train.json").stat().st_mtime_ns == stamp
+    # A suite: each entry names its folder's config; finished entries of the same folder are kept.
+    other = tmp_path / "other.yaml"
+    other.write_text(config.read_text())
+    suite = tmp_path / "suite.yaml"
+    suite.write_text(
+        "budget: 4\nevaluate: {num: 16, repeats: 2, sampler: ddim, steps: 2}\nvariants:\n"
+        f"  - {{name: baseline, factor: tiny, config: {config}}}\n"
+        f"  - {{name: other, factor: other folder, config: {other}, fit: [--model.lambda_adv, '0']}}\n"
+    )
+    args_suite = ["bench", "train", "--to-bar", "--suite", str(suite), "--out", "abl"]
+    assert main(args_suite) == 0
+    assert Path("abl/baseline/train.json").stat().st_mtime_ns == stamp
+    table = (tmp_path / "abl" / "ablation.md").read_text()
+    assert f"| `{other}` | other folder | other | 4 |" in table
+    fit_args = json.loads(Path("abl/other/train.json").read_text())["fit_args"]
+    assert fit_args[:2] == ["--model.lambda_adv", "0"]
+    assert json.loads(Path("abl/other/train.json").read_text())["fit_args"][:2] == ["--model.lambda_adv", "0"]
+    # A grid naming a variant that does not exist, or a `from` that is not trained before it.
+    grid.write_text("variants:\n  - {name: a, from: b}\n")
+    assert main(args) == 1
+
+
+def test_bench_time_to_bar_times_a_run_and_reads_its_metrics(tiny_root, tmp_path, monkeypatch):
+    """`walkdiff bench train --to-bar` on a tiny config: its measurements, their times and the bar."""
+    from mlflow import MlflowClient
+
+    from walkdiff.bench.time_to_bar import BAR
+    from walkdiff.cli.main import main
+
+    evaluator = tiny_evaluator(tiny_root, tmp_path / "evaluator.ckpt")
     monkeypatch.chdir(tmp_path)  # the config's mlruns/ and checkpoints/ land here
     metrics = {
         "class_path": "walkdiff.callbacks.metrics.MotionMetrics",

@@ -99,6 +99,7 @@ class _TimeToBar:
                 for name, (kind, factor) in BAR.items()
             },
             "measurements": rows,
+            "checkpoints": _checkpoints(trainer),
             "time_to_bar": _first(rows, "at_bar"),
             "per_criterion": {name: _first(rows, f"{name}_ok") for name in BAR},
             "training_s": round(now["wall_s"] - measuring_s, 1),
@@ -113,6 +114,18 @@ class _TimeToBar:
         else:
             write_json(self.out, result)
         return result
+
+
+def _checkpoints(trainer) -> dict[str, str]:
+    """{stable link name: this run's file} of every RunCheckpoint (e.g. last, best): the files of this
+    run, where the links may since point at a newer run's."""
+    from walkdiff.callbacks.checkpoints import RunCheckpoint
+
+    return {
+        c.link: c.best_model_path
+        for c in trainer.callbacks
+        if isinstance(c, RunCheckpoint) and c.best_model_path
+    }
 
 
 def _metrics_callback(trainer):

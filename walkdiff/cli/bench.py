@@ -16,7 +16,7 @@ def add_parsers(sub) -> None:
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     for add in (
         add_data, add_train, add_gesture, add_stream, add_memory, add_view, add_walk, add_distill, add_sample,
-        add_protocol, add_style, add_retarget, add_play, add_turns,
+        add_protocol, add_style, add_retarget, add_play, add_turns, add_ablate,
     ):  # fmt: skip
         add(bench)
     for b in bench.choices.values():
@@ -70,6 +70,30 @@ def run_data(args: argparse.Namespace) -> None:
     bench_data(args.out, args.dataset, args.root)
 
 
+def add_ablate(bench) -> None:
+    b = bench.add_parser(
+        "ablate", help="variants of a config trained at one batch budget and scored alike, in one table"
+    )
+    b.add_argument("--out", required=True, help="folder: a sub-folder per variant, ablation.json and .md")
+    b.add_argument("--config", default=None, help="the config the variants change (unless each names one)")
+    b.add_argument("--grid", required=True, help="YAML naming the variants (conf/ablation/*.yaml)")
+    b.add_argument("--evaluator", default=None, help="default: the config's metrics callback's")
+    b.add_argument("--only", default=None, help="comma-separated variant names to run (default: all)")
+    b.set_defaults(run=run_ablate)
+
+
+def run_ablate(args: argparse.Namespace) -> None:
+    import torch
+
+    from walkdiff.bench.ablate import bench_ablate
+
+    only = args.only.split(",") if args.only else None
+    result = bench_ablate(
+        args.out, args.config, args.grid, args.evaluator, only, torch.get_num_threads(), args.overwrite
+    )
+    print(f"{len(result['variants'])} variants in {args.out}/ablation.md")
+
+
 def add_train(bench) -> None:
     b = bench.add_parser("train", help="training windows/s under Lightning vs a plain PyTorch loop")
     b.add_argument("--out", required=True)
@@ -79,6 +103,12 @@ def add_train(bench) -> None:
         "--to-bar", action="store_true",
         help="train the config to its epoch bound and report when its metrics reach the quality bar",
     )  # fmt: skip
+    b.add_argument(
+        "--suite",
+        default=None,
+        help="with --to-bar: a YAML of folders (each a variant naming its config, as `bench ablate`'s grid) "
+        "trained and scored into one table; --out is then a folder",
+    )
     b.add_argument(
         "--evaluator",
         default=None,
@@ -96,7 +126,20 @@ def add_train(bench) -> None:
 
 def run_train(args: argparse.Namespace) -> None:
     """Seconds per batch, or with --to-bar a whole run timed to the quality bar."""
-    if args.to_bar:
+    if args.suite and not args.to_bar:
+        raise WalkdiffError(
+            "--suite is a --to-bar option: walkdiff bench train --to-bar --suite FILE --out DIR"
+        )
+    if args.suite:
+        import torch
+
+        from walkdiff.bench.ablate import bench_ablate
+
+        result = bench_ablate(
+            args.out, None, args.suite, args.evaluator, None, torch.get_num_threads(), args.overwrite
+        )
+        print(f"{len(result['variants'])} folders in {args.out}/ablation.md")
+    elif args.to_bar:
         from walkdiff.bench.time_to_bar import bench_time_to_bar
 
         bench_time_to_bar(args.out, args.config, args.evaluator, args.repeats, args.fit_args)

@@ -114,6 +114,9 @@ def command_output(args: argparse.Namespace) -> tuple[Path, tuple[str, ...]] | N
     """
     if args.command == "convert":
         return Path(args.output), ()
+    resumable = args.command == "bench" and (args.what == "ablate" or getattr(args, "suite", None))
+    if resumable:  # a folder of variants it resumes; --overwrite trains them again
+        return Path(args.out), ()
     if args.command == "bench":
         folder = args.what in BENCH_FOLDERS
         return Path(args.out), BENCH_REPORTS[args.what] if folder else ("",)

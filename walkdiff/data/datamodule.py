@@ -6,6 +6,7 @@ import inspect
 import logging
 import os
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import lightning as L
@@ -25,6 +26,9 @@ from walkdiff.motion.skeleton import Skeleton
 from walkdiff.spec import DataSpec
 
 log = logging.getLogger(__name__)
+
+# data.balance: how often training windows are drawn (`MotionDataModule.training_weights`).
+BALANCE = ("none", "content", "cell")
 
 
 class WindowDataset(Dataset):
@@ -63,27 +67,34 @@ class EpochShuffle(Sampler[int]):
     uninterrupted one (a plain shuffling DataLoader draws from torch's global generator instead).
     """
 
-    def __init__(self, size: int, seed: int = 0):
-        self.size, self.seed, self.epoch = size, seed, 0
+    def __init__(self, size: int, seed: int = 0, weights: torch.Tensor | None = None):
+        self.size, self.seed, self.epoch, self.weights = size, seed, 0, weights
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
     def __iter__(self):
         generator = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
+        if self.weights is not None:  # an epoch's worth of windows drawn in proportion to their weights
+            return iter(
+                torch.multinomial(self.weights, self.size, replacement=True, generator=generator).tolist()
+            )
         return iter(torch.randperm(self.size, generator=generator).tolist())
 
     def __len__(self) -> int:
         return self.size
 
 
-def window_loader(data: Dataset, batch_size: int, shuffle: bool, num_workers: int) -> DataLoader:
-    """The DataLoader every walkdiff data module uses: epoch-seeded shuffling for training."""
+def window_loader(
+    data: Dataset, batch_size: int, shuffle: bool, num_workers: int, weights: torch.Tensor | None = None
+) -> DataLoader:
+    """The DataLoader every walkdiff data module uses: epoch-seeded shuffling for training (windows drawn
+    in proportion to `weights` when given)."""
     seed = int(os.environ.get("PL_GLOBAL_SEED", 0))
     return DataLoader(
         data,
         batch_size=batch_size,
-        sampler=EpochShuffle(len(data), seed) if shuffle else None,
+        sampler=EpochShuffle(len(data), seed, weights) if shuffle else None,
         drop_last=shuffle and len(data) >= batch_size,  # never an empty training loader
         num_workers=num_workers,
         persistent_workers=num_workers > 0,
@@ -97,7 +108,13 @@ class WindowLoaders(L.LightningDataModule):
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         self.setup()
-        return window_loader(self.datasets[split], self.hparams.batch_size, shuffle, self.hparams.num_workers)
+        h = self.hparams
+        weights = self.training_weights() if split == "train" else None
+        return window_loader(self.datasets[split], h.batch_size, shuffle, h.num_workers, weights)
+
+    def training_weights(self) -> torch.Tensor | None:
+        """How often each training window is drawn, relative to the others (None: each once an epoch)."""
+        return None
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)
@@ -127,6 +144,8 @@ class MotionDataModule(WindowLoaders):
         window: frames per training window. Xia's clips are short (walking: median 40 frames at
             30 fps), so 24 keeps 99% of the walking; longer motion is generated window by window.
         stride: frames between window starts.
+        balance: `none` (every window once an epoch), `content` (every content label drawn alike) or
+            `cell` (every style x content pair alike), drawn with replacement, an epoch's worth.
         mirror: add left/right mirrored copies of the training clips (refused for a skeleton without
             left/right pairs). A copy of a clip whose style or content names a side (`walk-turn-left`,
             `punch_l`, `lturn`, ...) takes the label with the side swapped; one whose swapped label no
@@ -161,11 +180,14 @@ class MotionDataModule(WindowLoaders):
         on_error: str = "fail",
         preprocess_workers: int = 2,
         leave_out_styles: list[str] | None = None,
+        balance: str = "none",
     ):
         super().__init__()
         self.save_hyperparameters(logger=False)  # the run logs its config (run_params)
         if window < 2 or stride < 1:
             raise WalkdiffError(f"data.window must be >= 2 and data.stride >= 1, got {window} and {stride}")
+        if balance not in BALANCE:
+            raise WalkdiffError(f"data.balance: expected one of {', '.join(BALANCE)}, got {balance!r}")
         self.source = open_source(
             dataset, root, profile, labels=labels, pattern=pattern, default_style=default_style,
             default_content=default_content, val_fraction=val_fraction, test_fraction=test_fraction,
@@ -293,6 +315,20 @@ class MotionDataModule(WindowLoaders):
                 raise WalkdiffError(
                     f"the {split} split has no {h.window}-frame windows; use a shorter data.window"
                 )
+
+    def training_weights(self) -> torch.Tensor | None:
+        """With data.balance `content`, every content label is drawn as often as the others (a rare kind
+        of motion learned as well as a common one); with `cell`, every style x content pair. Mirrored
+        copies count under the labels they carry. None with `none`: each window once an epoch."""
+        if self.hparams.balance == "none":
+            return None
+        data = self.datasets["train"]
+        keys = [
+            data.labels[clip][1] if self.hparams.balance == "content" else data.labels[clip][:2]
+            for clip, _ in data.index
+        ]
+        counts = Counter(keys)
+        return torch.tensor([1.0 / counts[key] for key in keys], dtype=torch.float64)
 
     def _report_mirror_labels(self) -> None:
         """Log the lateral labels that mirrored copies swap; warn about those whose copies are left out."""

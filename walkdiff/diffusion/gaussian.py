@@ -133,6 +133,19 @@ class GaussianDiffusion(nn.Module):
             - extract(self.sqrt_one_minus_alphas_cumprod, t, x0) * x0
         )
 
+    def min_snr_weights(self, t: torch.Tensor, gamma: float) -> torch.Tensor:
+        """Min-SNR-γ loss weights (Hang et al. 2023) of the network's output error at steps t, (B,).
+
+        Every prediction type's squared error is that of x0 times a factor of the SNR ᾱ/(1−ᾱ); min-SNR
+        makes the x0 error's weight min(SNR, γ): the steps near the data stop dominating, the steps near
+        the noise (SNR < 1) count for less. Divided by the mean over all steps, so the term keeps the
+        scale of a uniform weighting beside the other loss terms."""
+        abar = self.alphas_cumprod.double()
+        snr = abar / (1 - abar)
+        per_step = {"x0": 1.0, "eps": snr, "v": snr + 1}[self.prediction]  # output error = x0 error / this
+        weights = snr.clamp(max=gamma) / per_step
+        return (weights / weights.mean()).to(self.alphas_cumprod.dtype)[t]
+
     def sample_timesteps(self, batch: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """Uniform training timesteps, shape (batch,), long, on the schedule's device."""
         device = self.betas.device if generator is None else generator.device

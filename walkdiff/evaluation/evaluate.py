@@ -123,19 +123,17 @@ def evaluate(
     )
     scorer.set_reference(reference)
 
-    rows: dict[str, list[dict[str, float]]] = {}
+    rows = _Rows(scorer, seed)
     if model is not None:
         content_ids = [list(model.spec["contents"]).index(name) for name in dm.selection.names]
         sampling = dict(sampler=sampler, steps=steps, guidance=guidance)
-        rows |= _generated_rows(
-            model, scorer, content_ids, num, repeats, seed, batch_size, ground, sampling, plan.timed
+        _generated_rows(
+            rows, model, content_ids, num, repeats, seed, batch_size, ground, sampling, plan.timed
         )
     draw = torch.Generator().manual_seed(seed)
     for name, pool in ((f"real {split}", reference), (f"real train vs {split}", train)):
-        rows[name] = [
-            scorer.score(pool.take(torch.randint(len(pool), (num,), generator=draw)), seed=seed + repeat)
-            for repeat in progress(range(repeats), desc=name, unit="repeat")
-        ]
+        for repeat in progress(range(repeats), desc=name, unit="repeat"):
+            rows.add(name, pool.take(torch.randint(len(pool), (num,), generator=draw)), repeat)
     halves = [
         halves_fmd(reference, draw) for _ in progress(range(repeats), desc=f"{split} halves", unit="repeat")
     ]
@@ -165,7 +163,8 @@ def evaluate(
             "windows": {split: len(reference), "train": len(train)},
             "clips": {split: len(reference.clip.unique()), "train": len(train.clip.unique())},
         },
-        "rows": {name: summarize_runs(runs) for name, runs in rows.items()},
+        "rows": {name: summarize_runs(runs) for name, runs in rows.pooled.items()},
+        "per_content": rows.per_content_summary(spec.contents),
         f"fmd_{split}_halves": summarize(halves, NON_NEGATIVE),
         "elapsed_s": round(time.perf_counter() - started, 1),
         "estimated_generation_s": None if plan is None else round(plan.estimate_s, 1),
@@ -213,28 +212,59 @@ def _generator_and_data(evaluator, ckpt, scorer_model, contents: str | None, dev
     return model, settings
 
 
+class _Rows:
+    """Each row's scores per repeat: pooled (`MotionScorer.score`) and per content label
+    (`MotionScorer.per_content`, on the same windows)."""
+
+    def __init__(self, scorer: MotionScorer, seed: int):
+        self.scorer, self.seed = scorer, seed
+        self.pooled: dict[str, list[dict[str, float]]] = {}
+        self.labels: dict[str, list[dict[int, dict[str, float]]]] = {}
+
+    def add(self, row: str, windows, repeat: int, labels: bool = True) -> None:
+        """Scores one repeat's windows (embedded here when they are not yet)."""
+        if windows.features is None:
+            windows = self.scorer.embed(windows)
+        self.pooled.setdefault(row, []).append(self.scorer.score(windows, seed=self.seed + repeat))
+        if labels:
+            self.labels.setdefault(row, []).append(self.scorer.per_content(windows, seed=self.seed + repeat))
+
+    def per_content_summary(self, names: list[str]) -> dict[str, dict[str, dict]]:
+        """{content label: {row: {figure: summary over repeats}}}; a figure that is NaN in some repeat
+        (no foot contact seen) is summarised over the repeats that have it."""
+        summary: dict[str, dict[str, dict]] = {}
+        for row, repeats in self.labels.items():
+            for content in repeats[0]:
+                figures = {}
+                for figure in ("turn_deg_s", "multimodality", "skate_ratio"):
+                    values = [r[content][figure] for r in repeats if math.isfinite(r[content][figure])]
+                    if values:
+                        figures[figure] = summarize(values)
+                figures["windows"] = repeats[0][content]["windows"]
+                summary.setdefault(names[content], {})[row] = figures
+        return summary
+
+
 def _generated_rows(
-    model, scorer: MotionScorer, content_ids: list[int], num: int, repeats: int, seed: int, batch_size: int,
+    rows: _Rows, model, content_ids: list[int], num: int, repeats: int, seed: int, batch_size: int,
     ground: bool, sampling: dict, timed=None,
-) -> dict[str, list[dict[str, float]]]:  # fmt: skip
+) -> None:  # fmt: skip
     """Scores of `repeats` sets of `num` generated windows: grounded (with `ground`), and the same
     windows as generated, so that the rows differ by what grounding changes and only that. `timed`:
     told the seconds of each batch of the first repeat."""
     generator = torch.Generator(device=model.device).manual_seed(seed)
-    rows: dict[str, list[dict[str, float]]] = {"generated": []}
     for repeat in range(repeats):
         windows = generate_windows(
             model, num, content_ids, generator, batch_size, grounded=False,
             desc=f"generating, repeat {repeat + 1} of {repeats}", timed=timed if repeat == 0 else None,
             **sampling,
         )  # fmt: skip
+        grounded = (
+            replace(windows, raw=torch.from_numpy(model.ground(windows.raw.numpy()))) if ground else windows
+        )
+        rows.add("generated", grounded, repeat)
         if ground:
-            rows.setdefault("generated, not grounded", []).append(
-                scorer.score(scorer.embed(windows), seed=seed + repeat)
-            )
-            windows = replace(windows, raw=torch.from_numpy(model.ground(windows.raw.numpy())))
-        rows["generated"].append(scorer.score(scorer.embed(windows), seed=seed + repeat))
-    return rows
+            rows.add("generated, not grounded", windows, repeat, labels=False)
 
 
 def format_report(report: dict) -> str:
@@ -261,6 +291,7 @@ def format_report(report: dict) -> str:
     for name, summary in report["rows"].items():
         cells = [format_summary(summary[m], METRICS[m][1]) for m in shown]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", *format_per_content(report["per_content"])]
     halves = report[f"fmd_{split}_halves"]
     lines += [
         "",
@@ -273,6 +304,30 @@ def format_report(report: dict) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+PER_CONTENT = {
+    "turn_deg_s": ("Turn °/s (+ left)", 1),
+    "multimodality": ("Multimodality →", 3),
+    "skate_ratio": ("Skate ratio ↓", 3),
+}
+
+
+def format_per_content(per_content: dict) -> list[str]:
+    """Per content label, each row beside the others: the figures pooled rows average away."""
+    lines = [
+        "Per content label (multimodality: pairs of one style inside the label):",
+        "",
+        "| label | row | windows | " + " | ".join(h for h, _ in PER_CONTENT.values()) + " |",
+        "|---|---|---:|" + "---:|" * len(PER_CONTENT),
+    ]
+    for label, rows in per_content.items():
+        for row, figures in rows.items():
+            cells = [
+                format_summary(figures[f], d) if f in figures else "–" for f, (_, d) in PER_CONTENT.items()
+            ]
+            lines.append(f"| {label} | {row} | {figures['windows']} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def write_reports(report: dict, out: Path) -> None:

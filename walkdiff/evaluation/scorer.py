@@ -24,7 +24,7 @@ from walkdiff.common.checkpoints import expect_class
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.metrics import Diversity, FootSkating, FrechetMotionDistance, Jitter, Multimodality
-from walkdiff.motion.representation import features_to_positions
+from walkdiff.motion.representation import FeatureLayout, features_to_positions
 from walkdiff.motion.skeleton import Skeleton
 
 
@@ -168,6 +168,29 @@ class MotionScorer:
         jitter.update(positions)
         values["jitter"] = jitter.compute()
         return {name: float(value) for name, value in values.items()}
+
+    def per_content(self, windows: WindowSet, seed: int = 0) -> dict[int, dict[str, float]]:
+        """Per content label of embedded windows with raw features: the signed heading change in degrees
+        per second (positive to the body's left), multimodality (pairs of one style inside the label) and
+        foot skating. Pooled figures hide a label that turns half as far or varies less than real."""
+        if windows.raw is None:
+            raise WalkdiffError("per-label figures need raw feature windows (a generator's or a split's)")
+        heading = windows.raw[:, :, FeatureLayout.heading_vel.start].double().mean(dim=1)
+        rows = {}
+        for content in windows.content.unique(sorted=True).tolist():
+            mask = windows.content == content
+            multimodality = Multimodality(num_pairs=20, seed=seed)
+            multimodality.update(windows.features[mask], windows.style[mask])
+            positions = windows.positions[mask].double()
+            skating = FootSkating(self.foot_joints, self.fps, self.speed_threshold)
+            skating.update(positions, self.ground_contacts(positions))
+            rows[content] = {
+                "turn_deg_s": math.degrees(float(heading[mask].mean())) * self.fps,
+                "multimodality": float(multimodality.compute()),
+                "skate_ratio": float(skating.compute()["skate_ratio"]),
+                "windows": int(mask.sum()),
+            }
+        return rows
 
 
 def fmd_metric(real_features: torch.Tensor) -> FrechetMotionDistance:

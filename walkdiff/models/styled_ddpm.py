@@ -94,6 +94,7 @@ class StyledMotionDiffusion(MotionModule):
         beta_start: float = 1e-3,
         beta_end: float = 0.2,
         prediction: str = "eps",
+        min_snr_gamma: float | None = None,  # Min-SNR-γ weighting of the diffusion term; None: uniform
         lambda_contact: float = 1.0,
         lambda_root: float = 1.0,
         lambda_adv: float = 0.05,
@@ -119,6 +120,10 @@ class StyledMotionDiffusion(MotionModule):
         self.save_hyperparameters(ignore=["data_spec"], logger=False)  # the run logs its config (run_params)
         self.hparams["data_spec"] = spec = self.spec
         self.automatic_optimization = False
+        if min_snr_gamma is not None and not min_snr_gamma > 0:
+            raise WalkdiffError(
+                f"model.min_snr_gamma: expected a number > 0 (5 is usual) or null, got {min_snr_gamma}"
+            )
 
         self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
@@ -228,7 +233,7 @@ class StyledMotionDiffusion(MotionModule):
         raw = self.normalizer.denormalize(batch["features"])
         contacts = self.layout.contacts
         losses = {
-            "diffusion": F.mse_loss(out, target),
+            "diffusion": self._diffusion_loss(out, target, t),
             "contact": (
                 weight * (raw_hat[..., contacts] - raw[..., contacts]).pow(2).mean(dim=(1, 2))
             ).mean(),
@@ -257,6 +262,14 @@ class StyledMotionDiffusion(MotionModule):
             fake = self.discriminator(x0_hat, batch["style"], batch["content"])
             losses["adv"] = (weight * 0.5 * (fake - 1).pow(2)).mean()
         return losses
+
+    def _diffusion_loss(self, out: torch.Tensor, target: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """The network's squared error, uniform over noise levels or Min-SNR-γ weighted."""
+        gamma = self.hparams.min_snr_gamma
+        if gamma is None:
+            return F.mse_loss(out, target)
+        error = (out - target).pow(2).mean(dim=tuple(range(1, out.ndim)))
+        return (self.diffusion.min_snr_weights(t, gamma) * error).mean()
 
     def total_loss(self, losses: dict[str, torch.Tensor]) -> torch.Tensor:
         h = self.hparams
