@@ -252,12 +252,15 @@ def figures(train: dict, evaluation: dict) -> dict:
     floor = rows[f"real train vs {evaluation['settings']['split']}"]["fmd"]
 
     def ratio(summary: dict, reference: float) -> dict | None:
-        if not reference > 0:  # no real reference to compare with (e.g. no real contact step)
+        """summary / reference with its interval; a negative reference (a right turn) keeps the
+        interval's order. None without a reference (e.g. no real contact step)."""
+        if not (math.isfinite(reference) and reference != 0):
             return None
+        ends = sorted((summary["low"] / reference, summary["high"] / reference))
         return {
             "value": round(summary["mean"] / reference, 4),
-            "low": round(summary["low"] / reference, 4),
-            "high": round(summary["high"] / reference, 4),
+            "low": round(ends[0], 4),
+            "high": round(ends[1], 4),
         }
 
     row = {

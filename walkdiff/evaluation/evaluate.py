@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import math
+import statistics
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -234,13 +235,17 @@ class _Rows:
         (no foot contact seen) is summarised over the repeats that have it."""
         summary: dict[str, dict[str, dict]] = {}
         for row, repeats in self.labels.items():
-            for content in repeats[0]:
+            # A rare label may be missing from some repeats' draws of real windows.
+            for content in sorted({c for r in repeats for c in r}):
                 figures = {}
                 for figure in ("turn_deg_s", "multimodality", "skate_ratio"):
-                    values = [r[content][figure] for r in repeats if math.isfinite(r[content][figure])]
+                    values = [r[content][figure] for r in repeats if content in r]
+                    values = [v for v in values if math.isfinite(v)]
                     if values:
                         figures[figure] = summarize(values)
-                figures["windows"] = repeats[0][content]["windows"]
+                figures["windows"] = round(
+                    statistics.fmean(r[content]["windows"] for r in repeats if content in r)
+                )
                 summary.setdefault(names[content], {})[row] = figures
         return summary
 

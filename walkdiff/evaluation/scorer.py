@@ -181,12 +181,14 @@ class MotionScorer:
             mask = windows.content == content
             multimodality = Multimodality(num_pairs=20, seed=seed)
             multimodality.update(windows.features[mask], windows.style[mask])
+            # No style with two windows of this label in this draw (a rare label): no pair to measure.
+            paired = bool((torch.bincount(windows.style[mask]) >= 2).any())
             positions = windows.positions[mask].double()
             skating = FootSkating(self.foot_joints, self.fps, self.speed_threshold)
             skating.update(positions, self.ground_contacts(positions))
             rows[content] = {
                 "turn_deg_s": math.degrees(float(heading[mask].mean())) * self.fps,
-                "multimodality": float(multimodality.compute()),
+                "multimodality": float(multimodality.compute()) if paired else math.nan,
                 "skate_ratio": float(skating.compute()["skate_ratio"]),
                 "windows": int(mask.sum()),
             }
