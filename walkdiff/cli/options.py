@@ -8,7 +8,7 @@ from walkdiff.common.arguments import count, number
 
 # diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
-# styled.generation.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
+# diffusion.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
 MAX_GUIDANCE = 100.0
 # motion.rigs.RIGS, repeated for the same reason (a test keeps them equal).
 RIG_NAMES = ("mixamo", "unreal", "smpl")
