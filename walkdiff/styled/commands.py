@@ -16,8 +16,7 @@ from pathlib import Path
 from walkdiff.common.errors import command
 from walkdiff.common.files import check_free, output_folder, output_set, write_json
 from walkdiff.models.pipeline import Generated
-from walkdiff.models.style_examples import MATCH_CLIPS
-from walkdiff.models.style_labels import DEFAULT_TRANSITION, plot_timeline
+from walkdiff.models.style_labels import plot_timeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.take import Take
@@ -52,42 +51,30 @@ def _write_clip(
 def sample(
     ckpt: str | Path,
     out: str | Path,
-    style: str | None = None,
-    content: str = "walk",
+    style=None,
     num: int = 8,
     frames: int = 300,
     seed: int = 0,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    guidance: float = 1.0,
-    overlap: int | None = None,
-    blend: int | None = None,
     ground: bool = True,
     fix_feet: bool | None = None,
     gif: bool = True,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
-    to: str | None = None,
-    to_map: str | None = None,
-    style_clips: str | None = None,
-    transition: float = DEFAULT_TRANSITION,
-    match_clips: float = MATCH_CLIPS,
+    **request,
 ) -> dict:
     """`walkdiff sample`: `StyledGenerator.sample`'s clips as BVH (+ GIF previews of their first
-    `preview_seconds`) and `manifest.json` in `out`; returns the manifest."""
+    `preview_seconds`) and `manifest.json` in `out`; returns the manifest. `request`: the style, content,
+    sampler, windows and rig, as `StyledGenerator.request` takes them."""
     check_sample_size(num, frames)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
-    request = generator.request(
-        style, content, sampler, steps, eta, guidance, overlap, blend, to, to_map, style_clips, transition,
-        match_clips,
-    )  # fmt: skip
+    request = generator.request(style, **request)
     out = output_folder(out)
-    bvh = [out / f"{request.label}_{content}_{i:03d}.bvh" for i in range(num)]
+    stem = f"{request.label}_{request.content_name}"
+    bvh = [out / f"{stem}_{i:03d}.bvh" for i in range(num)]
     previews = [p.with_suffix(suffix) for p in bvh for suffix in (".gif", ".mp4")] if gif else []
-    timeline_png = out / f"{request.label}_{content}_timeline.png"
+    timeline_png = out / f"{stem}_timeline.png"
     extra = [timeline_png] if request.timeline is not None else []
     check_free([*bvh, *previews, *extra, out / "manifest.json"], overwrite)
 
@@ -95,7 +82,7 @@ def sample(
     started = time.perf_counter()
     with output_set(out):
         for path, take in zip(bvh, result.takes, strict=True):
-            _write_clip(path, take, f"{request.label} {content}", cap)
+            _write_clip(path, take, f"{request.label} {request.content_name}", cap)
         if request.timeline is not None:
             plot_timeline(timeline_png, request.timeline, list(generator.styles), frames / generator.fps)
         files = {"files": [p.name for p in bvh]}
@@ -110,36 +97,23 @@ def transfer(
     ckpt: str | Path,
     input: str | Path,
     out: str | Path,
-    style: str | None = None,
-    content: str = "walk",
+    style=None,
     strength: float = 0.6,
     keep_trajectory: bool = False,
     seed: int = 0,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    guidance: float = 1.0,
-    overlap: int | None = None,
-    blend: int | None = None,
     ground: bool = True,
     fix_feet: bool | None = None,
     gif: bool = True,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
-    to: str | None = None,
-    to_map: str | None = None,
-    style_clips: str | None = None,
-    match_clips: float = MATCH_CLIPS,
+    **request,
 ) -> dict:
     """`walkdiff transfer`: `StyledGenerator.transfer`'s clip as `out/<input>_to_<style>.bvh`, a GIF beside
     the source (of their first `preview_seconds`) and a JSON report."""
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
-    request = generator.request(
-        style, content, sampler, steps, eta, guidance, overlap, blend, to, to_map, style_clips,
-        match_clips=match_clips,
-    )  # fmt: skip
+    request = generator.request(style, **request)
     input = Path(input)
     out = output_folder(out)
     target = out / f"{input.stem}_to_{request.label}.bvh"
