@@ -214,7 +214,7 @@ def test_follow_walks_points_a_polyline_or_a_file_as_the_walk_command(walker, tm
         follower.follow([[0, 0], [1, float("nan")]], "old")
     with pytest.raises(walkdiff.WalkdiffError, match="unknown style 'sleepy'; valid: angry, childlike"):
         follower.follow(points, "sleepy")
-    with pytest.raises(walkdiff.WalkdiffError, match="no walking speed for a style; give --speed"):
+    with pytest.raises(walkdiff.WalkdiffError, match="no walking speed for a style; give speed"):
         follower.follow(points, "proud")  # no proud walks in the synthetic data
 
 

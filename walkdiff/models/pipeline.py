@@ -88,6 +88,8 @@ class Pipeline:
         """A clip to restyle or take a style from, as the model takes it: checked to be on its skeleton,
         canonical, at its fps. `what` names the option in errors."""
         path = None
+        if isinstance(motion, Generated):  # a result of one take: that take
+            motion = motion.take
         if isinstance(motion, Take):
             motion = motion.motion
         elif isinstance(motion, str | os.PathLike):
