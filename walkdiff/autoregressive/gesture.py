@@ -214,6 +214,12 @@ def write_takes(
     return files + [gif, gif.with_suffix(".mp4")], cap.describe(frames, fps, len(takes))
 
 
+def bvh_names(out: Path, stem: str, seed: int, streams: int) -> tuple[list[str], list[Path]]:
+    """Each stream's title and BVH file (`write_takes` names them the same), for `gesture` and its stream."""
+    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
+    return titles, [out / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+
+
 @command
 def gesture(
     ckpt: str,
@@ -231,9 +237,8 @@ def gesture(
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
     cap = PreviewCap(preview_seconds)
-    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
     stem, out = Path(audio).stem, output_folder(out)
-    targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+    titles, targets = bvh_names(out, stem, seed, streams)
     check_free([*targets, Path(out) / f"{stem}.gif", Path(out) / f"{stem}.mp4"], overwrite)
     generator = GestureGenerator.load(ckpt)
     result = generator.gesture(audio, seed, streams, smooth, **request)
@@ -305,8 +310,7 @@ def gesture_stream(
             raise WalkdiffError("--rate is for raw PCM on stdin (--audio -); a WAV file gives its own rate")
         decoder, chunks = WavDecoder(audio, spec.get("sample_rate")), None
     stem, out = ("stdin" if from_stdin else Path(audio).stem), output_folder(out)
-    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
-    targets = [out / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+    titles, targets = bvh_names(out, stem, seed, streams)
     check_free(targets, overwrite)
     chunks = chunks if from_stdin else read_growing(audio, idle)  # opened once the outputs are free
 

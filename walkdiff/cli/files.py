@@ -33,18 +33,13 @@ def add_parsers(sub) -> None:
         "retarget", help="play a BVH clip on another humanoid rig: your rig's BVH or mixamo, unreal, smpl"
     )
     p.add_argument("input", help="the clip to retarget (BVH)")
-    p.add_argument(
-        "--to",
-        required=True,
-        help="the target rig: a BVH of it (its first frame standing) or mixamo, unreal, smpl",
-    )
+    rig_options(p, required=True)
     p.add_argument("--out", required=True, help="the output, .bvh (the target's skeleton) or .glb")
     p.add_argument(
         "--feet", choices=("follow", "pin", "off"), default="follow",
         help="planted feet: move as the source's did (follow, default), held still (pin), no foot IK (off)",
     )  # fmt: skip
     p.add_argument("--source-map", default=None, help="YAML/JSON overrides of the input's humanoid map")
-    p.add_argument("--target-map", default=None, help="YAML/JSON overrides of the target's humanoid map")
     p.add_argument(
         "--reference-frame", type=count(0), default=None,
         help="the input's frame to align on (default: its rest pose; a standing frame when that is no pose)",
@@ -172,7 +167,7 @@ def run_retarget(args: argparse.Namespace) -> None:
             args.out,
             feet=args.feet,
             source_map=args.source_map,
-            target_map=args.target_map,
+            target_map=args.to_map,
             reference_frame=args.reference_frame,
             overwrite=args.overwrite,
         )  # fmt: skip

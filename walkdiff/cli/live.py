@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, keyword_options, steering_options, walker_clip_options
+from walkdiff.cli.options import keyword_options, sampler_options, steering_options, walker_clip_options
 from walkdiff.common.arguments import count, number
 
 
@@ -28,12 +28,8 @@ def walker_options(p: argparse.ArgumentParser) -> None:
     )
     walker_clip_options(p)
     p.add_argument("--seed", type=count(0), default=0)
-    p.add_argument(
-        "--sampler", choices=SAMPLERS, default="ddim",
-        help="per-frame sampler (default ddim, 10 steps, eta 1: real time with DDPM's quality)",
-    )  # fmt: skip
-    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-    p.add_argument("--eta", type=number(0, 1), default=None, help="DDIM noise (default 1)")
+    real_time = "per-frame sampler (default ddim, 10 steps, eta 1: real time with DDPM's quality)"
+    sampler_options(p, "ddim", real_time, eta=None)
     steering_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
