@@ -38,7 +38,7 @@ ARROWS = {
 }  # fmt: skip
 # importlib call sites whose module is not written in their file (a class path read from a config or a
 # checkpoint): each one is named here with what it may load.
-DYNAMIC = {"walkdiff.bench.plan": "the model and data classes a training config names"}
+DYNAMIC = {"walkdiff.callbacks.plan": "the model and data classes a training config names"}
 MAX_FILE_LINES = 600
 MAX_FUNCTION_LINES = 120
 MAX_LOOSE_MODULES = 4

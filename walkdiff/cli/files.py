@@ -192,7 +192,7 @@ def run_scan(args: argparse.Namespace) -> None:
     timing = options.pop("timing")
     print(scan(**options), flush=True)
     if args.out is not None and timing:
-        from walkdiff.bench.plan import plan, plan_lines
+        from walkdiff.callbacks.plan import plan, plan_lines
         from walkdiff.data.scan import config_paths
 
         print("\n".join(plan_lines(plan(list(config_paths(args.folder, args.out, args.name))))))
