@@ -7,8 +7,15 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import keyword_options, sampler_options, steering_options, walker_clip_options
+from walkdiff.cli.options import (
+    keyword_options,
+    rig_options,
+    sampler_options,
+    steering_options,
+    walker_clip_options,
+)
 from walkdiff.common.arguments import count, number
+from walkdiff.common.errors import WalkdiffError
 
 
 def add_parsers(sub) -> None:
@@ -47,6 +54,7 @@ def add_control(sub) -> None:
         "--out", default=None,
         help="folder for the recorded take at the end (take.bvh, take.glb, take.json); default: none",
     )  # fmt: skip
+    rig_options(p)
     p.set_defaults(run=run_control)
 
 
@@ -74,6 +82,7 @@ def add_play(sub) -> None:
         "--fps", type=number(0, above=True), default=None,
         help="frame rate of the written take (default the model's; it generates at its own)",
     )  # fmt: skip
+    rig_options(p)
     p.set_defaults(run=run_play)
 
 
@@ -90,6 +99,11 @@ def run_play(args: argparse.Namespace) -> None:
     if options["script"] is None:
         from walkdiff.autoregressive.play_page import serve_page
 
+        if options.pop("to") is not None or options.pop("to_map") is not None:
+            raise WalkdiffError(
+                "--to is for play --script (the page records on the model's skeleton); retarget its takes "
+                "with `walkdiff retarget BVH --to RIG --out OUT`"
+            )
         del options["script"]
         summary = serve_page(**options)
     else:
