@@ -178,9 +178,10 @@ def write_clips(
     titles: list[str],
     cap: PreviewCap = DEFAULT_PREVIEW,
     audio: tuple[np.ndarray, int] | None = None,
+    rig: TargetRig | None = None,
 ) -> tuple[list[Path], dict]:
-    """`write_takes` of clips of features, on the training files' skeleton."""
-    takes = [Take.from_canonical(to_motion(model, clip), model.profile) for clip in clips]
+    """`write_takes` of clips of features, on the training files' skeleton or played by `rig`."""
+    takes = [Pipeline(model).take(to_motion(model, clip), rig) for clip in clips]
     return write_takes(out, stem, takes, titles, model.spec["fps"], cap, audio)
 
 
@@ -460,10 +461,14 @@ def evaluate_gesture(
     sampler: str = "ddpm",
     steps: int | None = None,
     eta: float = 0.0,
+    to: str | None = None,
+    to_map: str | None = None,
 ) -> dict:
     """`walkdiff evaluate-gesture`: every metric on the held-out part of each take, with 95% intervals
-    over the samples, into report.json."""
+    over the samples, into report.json; the per-take BVH and previews played by `to` (+ `to_map`) when
+    given (the metrics are on the model's skeleton)."""
     choice = SamplerChoice(sampler, steps, eta)
+    rig = TargetRig.of(to, to_map)
     if samples < 1:
         raise WalkdiffError(f"--samples must be >= 1, got {samples}")
     if not 0 < pck_threshold < np.inf:
@@ -519,6 +524,7 @@ def evaluate_gesture(
             model,
             [truth_features, smooth[0], raw[0]],
             ["truth", "smoothed", "generated"],
+            rig=rig,
         )
         rows.append(row)
     report = {
@@ -527,6 +533,7 @@ def evaluate_gesture(
         "samples": samples,
         "bootstrap": BOOTSTRAP,
         "seed": seed,
+        "retarget": None if rig is None else rig.record(),
         "pck_threshold_m": pck_threshold,
         "beat_sigma_s": BEAT_SIGMA,
         "shift_s": SHIFT_SECONDS,
