@@ -39,7 +39,7 @@ from walkdiff.common.progress import progress, step_hook
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.metrics import Jitter
-from walkdiff.models.pipeline import Generated, Pipeline
+from walkdiff.models.pipeline import Generated, Pipeline, specs_first
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
@@ -235,6 +235,7 @@ def gesture(
 ) -> dict:
     """`walkdiff gesture`: `GestureGenerator.gesture`'s clips as BVH(s) and a GIF (of their first
     `preview_seconds`) for a WAV file. `request`: sampler, steps, eta, to and to_map."""
+    request = specs_first(request)
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
     cap = PreviewCap(preview_seconds)

@@ -21,7 +21,7 @@ from walkdiff.common.files import check_free, output_folder, output_set, write_a
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.models.pipeline import Generated, Pipeline
+from walkdiff.models.pipeline import Generated, Pipeline, specs_first
 from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, clips_record
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
 from walkdiff.models.style_spec import Style
@@ -352,6 +352,7 @@ def walk(
     """`walkdiff walk`: `PathFollower.follow`'s walk as a BVH (+ a GIF of its first `preview_seconds` and
     a top-down plot) and its manifest; a timeline `style` also writes its weights' plot. `request`: the
     sampler, rig and style clips, as `PathFollower.request` takes them."""
+    request = specs_first(request)
     cap = PreviewCap(preview_seconds) if gif else None
     follower = PathFollower.load(ckpt)
     request = follower.request(style, speed, **request)  # before the path file is read

@@ -11,12 +11,21 @@ import torch
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.base import MotionModule
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion, Skeleton
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
+
+
+def specs_first(options: dict) -> dict:
+    """A command's request options with the sampler and the rig read into their specs (SamplerChoice,
+    TargetRig) first: a bad sampler or rig is said before the model loads."""
+    sampler = [options.pop(k) for k in ("sampler", "steps", "eta", "guidance") if k in options]
+    to = TargetRig.of(options.pop("to", None), options.pop("to_map", None))
+    return options | {"sampler": SamplerChoice.of(*sampler), "to": to}
 
 
 @dataclass

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from walkdiff.common.errors import command
 from walkdiff.common.files import check_free, output_folder, output_set, write_json
-from walkdiff.models.pipeline import Generated
+from walkdiff.models.pipeline import Generated, specs_first
 from walkdiff.models.style_labels import plot_timeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -67,6 +67,7 @@ def sample(
     `preview_seconds`) and `manifest.json` in `out`; returns the manifest. `request`: the style, content,
     sampler, windows and rig, as `StyledGenerator.request` takes them."""
     check_sample_size(num, frames)
+    request = specs_first(request)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     request = generator.request(style, **request)
@@ -111,6 +112,7 @@ def transfer(
 ) -> dict:
     """`walkdiff transfer`: `StyledGenerator.transfer`'s clip as `out/<input>_to_<style>.bvh`, a GIF beside
     the source (of their first `preview_seconds`) and a JSON report."""
+    request = specs_first(request)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     request = generator.request(style, **request)
