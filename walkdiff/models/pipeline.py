@@ -23,9 +23,10 @@ from walkdiff.motion.target_rig import TargetRig
 def specs_first(options: dict) -> dict:
     """A command's request options with the sampler and the rig read into their specs (SamplerChoice,
     TargetRig) first: a bad sampler or rig is said before the model loads."""
-    sampler = [options.pop(k) for k in ("sampler", "steps", "eta", "guidance") if k in options]
+    sampler = {k: options.pop(k) for k in ("steps", "eta", "guidance") if k in options}
+    sampler = SamplerChoice.of(options.pop("sampler", "ddpm"), **sampler)
     to = TargetRig.of(options.pop("to", None), options.pop("to_map", None))
-    return options | {"sampler": SamplerChoice.of(*sampler), "to": to}
+    return options | {"sampler": sampler, "to": to}
 
 
 @dataclass
