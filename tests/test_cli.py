@@ -181,3 +181,13 @@ def test_json_outputs_are_strict(tmp_path):
 
     path = write_json(tmp_path / "r.json", {"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": 2}})
     assert json.loads(path.read_text(), parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": 2}}
+
+
+def test_target_map_is_a_deprecated_name_of_to_map(capsys):
+    """The rig options are one group: retarget's --target-map is --to-map, said with a warning."""
+    from walkdiff.cli.main import build_parser
+
+    args = build_parser().parse_args(
+        ["retarget", "a.bvh", "--to", "mixamo", "--out", "b.bvh", "--target-map", "m.yaml"]
+    )
+    assert args.to_map == "m.yaml" and "--target-map is deprecated; use --to-map" in capsys.readouterr().err

@@ -263,6 +263,22 @@ def test_gesture_states_its_preview_and_refuses_audio_too_long_for_memory(
     assert not (tmp_path / "refused").exists()
 
 
+def test_evaluate_gesture_plays_its_files_on_a_rig_it_can(trained, tmp_path, capsys):
+    """--to on evaluate-gesture: its BVH previews go through the rig (this armless model is refused)."""
+    argv = [
+        "evaluate-gesture",
+        "--ckpt",
+        str(trained[0]),
+        "--out",
+        str(tmp_path),
+        "--samples",
+        "1",
+        "--to",
+        "smpl",
+    ]
+    assert main(argv) == 1 and "no arms" in capsys.readouterr().err
+
+
 def test_evaluate_gesture_report(trained, tmp_path):
     ckpt, _ = trained
     assert main(["evaluate-gesture", "--ckpt", str(ckpt), "--out", str(tmp_path), "--samples", "2"]) == 0
@@ -270,7 +286,7 @@ def test_evaluate_gesture_report(trained, tmp_path):
     assert [row["take"] for row in report["takes"]] == ["a", "b"]
     row = report["takes"][0]
     assert row["frames"] == 40 and row["onsets"] > 0
-    assert report["sampler"] == "ddpm-10"
+    assert report["sampler"] == "ddpm-10" and report["retarget"] is None
     for name in ("generated", "smoothed"):
         assert row[name]["l1"] > 0 and 0 <= row[name]["pck"] <= 1 and row[name]["diversity"] > 0
         assert 0 <= row[name]["bc"] <= 1 and 0 <= row[name]["bc_shifted"] <= 1

@@ -391,7 +391,7 @@ def test_guidance_is_bounded_and_non_finite_motion_is_never_written(ckpt, model,
     """--guidance 1e30 made a BVH of NaN: the weight is bounded where it is given, and any clip with NaN
     or infinite values (here from a diverged network) is refused, naming what made it, before a file."""
     from walkdiff.cli import options
-    from walkdiff.styled.generation import MAX_GUIDANCE
+    from walkdiff.diffusion import MAX_GUIDANCE
     from walkdiff.styled.pipeline import StyledGenerator, check_finite
 
     assert options.MAX_GUIDANCE == MAX_GUIDANCE
@@ -401,7 +401,7 @@ def test_guidance_is_bounded_and_non_finite_motion_is_never_written(ckpt, model,
     assert main([*args, "--out", str(out), "--guidance", "1e30"]) == 1
     assert "--guidance: expected a finite number in [0, 100], got '1e30'" in capsys.readouterr().err
     generator = StyledGenerator(model)
-    with pytest.raises(WalkdiffError, match=r"--guidance must be a number in \[0, 100\].*got 1e\+30"):
+    with pytest.raises(WalkdiffError, match=r"^guidance must be a number in \[0, 100\].*got 1e\+30"):
         generator.sample("old", frames=30, sampler="ddim", steps=1, guidance=1e30)
 
     diverged = torch.load(ckpt, map_location="cpu", weights_only=False)

@@ -129,3 +129,26 @@ def test_view_shows_each_clip_beside_its_retargeted_copy(xia_dir):
     heights = [np.ptp(c.positions[0, :, 1]) for c in clips]  # metres, Y up in the viewer
     assert 1.3 < heights[1] < 2.0 and heights[1] == pytest.approx(heights[0], rel=0.25)
     assert sorted(RIGS) == sorted(("mixamo", "unreal", "smpl"))
+
+
+def test_play_script_and_control_write_their_take_on_the_rig(xia_tiny, tmp_path, capsys, monkeypatch):
+    """--to on the live walker's commands: the take written at the end is on the rig; the page and a
+    control without --out refuse it, saying why."""
+    import io
+
+    script = tmp_path / "s.jsonl"
+    script.write_text('{"t": 0, "key": "ArrowUp"}\n{"t": 0.5}\n')
+    out = tmp_path / "play"
+    walker = ["--ckpt", str(xia_tiny["walker"]), "--style", "old", "--steps", "2", "--to", "mixamo"]
+    assert main(["play", *walker, "--script", str(script), "--out", str(out)]) == 0
+    assert read_bvh(out / "take.bvh").skeleton.same_hierarchy(rig("mixamo").skeleton)
+    assert json.loads((out / "take.json").read_text())["retarget"]["target"] == "built-in rig mixamo"
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(b'{"frames": 5}\n')))
+    assert main(["control", *walker, "--out", str(tmp_path / "control")]) == 0
+    assert read_bvh(tmp_path / "control" / "take.bvh").skeleton.same_hierarchy(rig("mixamo").skeleton)
+    capsys.readouterr()
+    assert (
+        main(["control", *walker]) == 1
+        and "--to plays the take written with --out" in capsys.readouterr().err
+    )
+    assert main(["play", *walker]) == 1 and "--to is for play --script" in capsys.readouterr().err

@@ -133,7 +133,11 @@ def test_what_style_clips_refuse(coded, xia_tiny, xia_dir, zeggs_dir, capsys):
         coded.sample(style_clips=str(zeggs_dir / "067_Speech_2_x_1_0.bvh"), **FAST)
     with pytest.raises(walkdiff.WalkdiffError, match="no style given"):
         coded.sample(**FAST)
-    with pytest.raises(walkdiff.WalkdiffError, match="--style proud: this model has no code for it"):
+    # The example as written: example clips as (clip, weight) pairs, a Motion among them
+    walk = read_bvh(xia_dir / "neutral_01_000.bvh")
+    restyled = coded.transfer(walk, style_clips=[(read_bvh(xia_dir / "old_02_000.bvh"), 0.5)], **FAST)
+    assert restyled.settings["style_clips"][0]["weight"] == 0.5 and restyled.take.num_frames > 0
+    with pytest.raises(walkdiff.WalkdiffError, match="^style proud: this model has no code for it"):
         coded.sample("proud", **FAST)
     with pytest.raises(walkdiff.WalkdiffError, match="weights > 0"):
         coded.sample(style_clips=f"{xia_dir / 'old_02_000.bvh'}:-1", **FAST)

@@ -111,7 +111,7 @@ def test_a_sample_matched_to_a_clip_has_statistics_nearer_it_than_its_code_alone
             "--out", str(tmp_path / "bad")]  # fmt: skip
     assert main(argv) == 1
     assert "--match-clips: expected a finite number in [0, 1], got '2'" in capsys.readouterr().err
-    with pytest.raises(walkdiff.WalkdiffError, match=r"--match-clips must be in \[0, 1\]"):
+    with pytest.raises(walkdiff.WalkdiffError, match=r"^match_clips must be in \[0, 1\]"):
         coded.sample(style_clips=clip, match_clips=-0.5, **FAST)
 
 

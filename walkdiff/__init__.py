@@ -11,6 +11,12 @@ __version__ = "0.1.0"
 # Public name -> the module that defines it.
 _API = {
     "load": "walkdiff.api",
+    "StyledGenerator": "walkdiff.styled.pipeline",
+    "PathFollower": "walkdiff.autoregressive.walk",
+    "GestureGenerator": "walkdiff.autoregressive.gesture",
+    "Generated": "walkdiff.models.pipeline",
+    "Style": "walkdiff.models.style_spec",
+    "SamplerChoice": "walkdiff.diffusion.samplers",
     "Take": "walkdiff.motion.take",
     "TargetRig": "walkdiff.motion.target_rig",
     "Motion": "walkdiff.motion.skeleton",

@@ -52,6 +52,7 @@ from walkdiff.models.pipeline import Pipeline
 from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, clips_record
 from walkdiff.models.style_labels import eased, parse_style
 from walkdiff.models.style_statistics import StyleStatistics
+from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
@@ -185,21 +186,6 @@ def yaw(heading: np.ndarray) -> np.ndarray:
     """(N,) angles -> (N, 3, 3) rotations about +Y, turning +Z to (sin h, 0, cos h) (`yaw_matrix`)."""
     sin, cos, zero, one = np.sin(heading), np.cos(heading), np.zeros_like(heading), np.ones_like(heading)
     return np.stack([cos, zero, sin, zero, one, zero, -sin, zero, cos], -1).reshape(-1, 3, 3)
-
-
-def world_positions(rotations: np.ndarray, translations: np.ndarray, parents) -> np.ndarray:
-    """World joint positions (N, J, 3) from local rotations (N, J, 3, 3) and translations (N, J, 3), as
-    `forward_kinematics` makes them, in numpy: a few frames at a time, this is several times faster."""
-    world_rot, world_pos = np.empty_like(rotations), np.empty_like(translations)
-    for joint, parent in enumerate(parents):
-        if parent < 0:
-            world_rot[:, joint], world_pos[:, joint] = rotations[:, joint], translations[:, joint]
-        else:
-            world_rot[:, joint] = world_rot[:, parent] @ rotations[:, joint]
-            world_pos[:, joint] = (world_rot[:, parent] @ translations[:, joint, :, None])[
-                ..., 0
-            ] + world_pos[:, parent]
-    return world_pos
 
 
 class WalkController:
@@ -405,7 +391,7 @@ class WalkController:
         translations[:, 0] = np.stack([position[:, 0], raw[:, layout.root_height.start], position[:, 1]], -1)
         canonical = Motion(skeleton, rotations, translations, 1.0 / self.fps)
         file = profile.to_file(canonical)  # characters as frames: every frame is converted on its own
-        world = world_positions(file.rotations, file.positions, profile.skeleton.parents) @ self.turn
+        world = forward_kinematics(file.rotations, file.positions, profile.skeleton.parents) @ self.turn
         quaternions = matrix_to_quaternion(torch.from_numpy(file.rotations)).numpy()
         degrees = 180 - np.remainder(180 - np.degrees(heading), 360)  # (-180, 180]
         return [

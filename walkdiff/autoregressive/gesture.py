@@ -32,14 +32,14 @@ import torch
 from scipy.signal import argrelmin
 
 from walkdiff.common.checkpoints import read_checkpoint
-from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError, command, python_api
 from walkdiff.common.files import check_free, output_folder, output_set, write_json
 from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.data.speech import SpeechDataModule, decode_poses, log_mel, onset_times, read_wav, wav_seconds
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.metrics import Jitter
-from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.pipeline import Generated, Pipeline, specs_first
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
@@ -104,29 +104,43 @@ class GestureGenerator(Pipeline):
     def load(cls, ckpt: str | Path, device: str = "cpu") -> GestureGenerator:
         return cls(load_model(ckpt, device))
 
+    @python_api
     def gesture(
         self,
         audio: str | os.PathLike | np.ndarray,
         seed: int = 0,
         samples: int = 1,
         smooth: bool = True,
-        sampler: str = "ddpm",
+        sampler: str | SamplerChoice | dict = "ddpm",
         steps: int | None = None,
         eta: float = 0.0,
         rate: int | None = None,
         to: TargetRig | str | os.PathLike | None = None,
-    ) -> list[Take]:
+        to_map=None,
+    ) -> Generated:
         """`samples` gesture clips, one frame per 1/fps of the speech: a WAV file, or samples (N,) or
         (N, channels) at `rate` Hz. `smooth`: DiffMotion's Savitzky-Golay filter (the command's --smooth).
-        `to`: a rig to play them on (`Take.retarget`)."""
-        choice = SamplerChoice(sampler, steps, eta)
-        rig = TargetRig.of(to)
+        `to` (+ `to_map`): a rig to play them on (`Take.retarget`). The result reads as the list of its
+        takes; its `settings` are what `walkdiff gesture` prints."""
+        choice = SamplerChoice.of(sampler, steps, eta).unguided()
+        rig = TargetRig.of(to, to_map)
         if samples < 1:
             raise WalkdiffError(f"samples must be >= 1, got {samples}")
         sound, rate = self.listen(audio, rate, samples)
         mel = log_mel(sound, rate, self.fps, self.model.spec["audio_dim"])
+        started = time.perf_counter()
         clips = synthesize(self.model, mel, samples, seed, smooth, choice)
-        return [self.take(to_motion(self.model, clip), rig) for clip in clips]
+        per_frame = (time.perf_counter() - started) / len(mel)
+        settings = {
+            "frames": len(mel),
+            "seconds": len(mel) / self.fps,
+            "streams": samples,
+            "sampler": choice.label(self.model.diffusion),
+            "seconds_per_frame": per_frame,
+        }
+        takes = [self.take(to_motion(self.model, clip), rig) for clip in clips]
+        timing = {"seconds_per_frame": per_frame}
+        return Generated(takes, settings, timing, seed=seed, rig=rig, extra={"audio": (sound, rate)})
 
     def listen(
         self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1
@@ -166,17 +180,28 @@ def write_clips(
     audio: tuple[np.ndarray, int] | None = None,
     rig: TargetRig | None = None,
 ) -> tuple[list[Path], dict]:
-    """One BVH per clip of features (on the training files' skeleton, or played by `rig`), and a GIF and
-    an MP4 (with `audio`, the speech, as its sound) of the first seconds of all of them side by side; the
-    files and what the preview shows."""
+    """`write_takes` of clips of features, on the training files' skeleton or played by `rig`."""
+    takes = [Pipeline(model).take(to_motion(model, clip), rig) for clip in clips]
+    return write_takes(out, stem, takes, titles, model.spec["fps"], cap, audio)
+
+
+def write_takes(
+    out: Path,
+    stem: str,
+    takes: list[Take],
+    titles: list[str],
+    fps: float,
+    cap: PreviewCap = DEFAULT_PREVIEW,
+    audio: tuple[np.ndarray, int] | None = None,
+) -> tuple[list[Path], dict]:
+    """One BVH per take (made at `fps`), and a GIF and an MP4 (with `audio`, the speech, as its sound) of
+    the first seconds of all of them side by side; the files and what the preview shows."""
     out.mkdir(parents=True, exist_ok=True)
-    fps = model.spec["fps"]
-    shown = cap.frames(max(len(c) for c in clips), fps, len(clips))
+    frames = max(t.num_frames for t in takes)
+    shown = cap.frames(frames, fps, len(takes))
     files, positions = [], []
-    for clip, title in zip(clips, titles):
-        take = Take.from_canonical(to_motion(model, clip), model.profile)
-        take = take if rig is None else take.retarget(rig)
-        path = out / (f"{stem}.bvh" if len(clips) == 1 else f"{stem}_{title}.bvh")
+    for take, title in zip(takes, titles, strict=True):
+        path = out / (f"{stem}.bvh" if len(takes) == 1 else f"{stem}_{title}.bvh")
         write_bvh(path, take.motion)
         files.append(path)
         canonical = take.canonical()
@@ -187,9 +212,16 @@ def write_clips(
         gif, positions, skeleton.parents, fps, names=skeleton.names, titles=titles, cap=cap, video=True,
         audio=audio,
     )  # fmt: skip
-    return files + [gif, gif.with_suffix(".mp4")], cap.describe(max(len(c) for c in clips), fps, len(clips))
+    return files + [gif, gif.with_suffix(".mp4")], cap.describe(frames, fps, len(takes))
 
 
+def bvh_names(out: Path, stem: str, seed: int, streams: int) -> tuple[list[str], list[Path]]:
+    """Each stream's title and BVH file (`write_takes` names them the same), for `gesture` and its stream."""
+    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
+    return titles, [out / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+
+
+@command
 def gesture(
     ckpt: str,
     audio: str,
@@ -199,41 +231,25 @@ def gesture(
     streams: int = 1,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    to: str | None = None,
-    to_map: str | None = None,
+    **request,
 ) -> dict:
-    """`walkdiff gesture`: BVH(s) and a GIF (of their first `preview_seconds`) for a WAV file; `to`: a
-    rig to play them on (`TargetRig`)."""
-    choice = SamplerChoice(sampler, steps, eta)
-    rig = None if to is None else TargetRig(to, to_map)
+    """`walkdiff gesture`: `GestureGenerator.gesture`'s clips as BVH(s) and a GIF (of their first
+    `preview_seconds`) for a WAV file. `request`: sampler, steps, eta, to and to_map."""
+    request = specs_first(request)
     if streams < 1:
         raise WalkdiffError(f"--streams must be >= 1, got {streams}")
     cap = PreviewCap(preview_seconds)
-    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
     stem, out = Path(audio).stem, output_folder(out)
-    targets = [Path(out) / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+    titles, targets = bvh_names(out, stem, seed, streams)
     check_free([*targets, Path(out) / f"{stem}.gif", Path(out) / f"{stem}.mp4"], overwrite)
     generator = GestureGenerator.load(ckpt)
-    model = generator.model
-    samples, rate = generator.listen(audio, streams=streams)
-    mel = log_mel(samples, rate, model.spec["fps"], model.spec["audio_dim"])
-    start = time.perf_counter()
-    clips = synthesize(model, mel, streams, seed, smooth, choice)
-    elapsed = time.perf_counter() - start
+    result = generator.gesture(audio, seed, streams, smooth, **request)
     with output_set(out):  # all or none: no BVH without the others and the preview
-        files, preview = write_clips(
-            Path(out), stem, model, list(clips), titles, cap, audio=(samples, rate), rig=rig
-        )
+        speech = result.extra["audio"]
+        files, preview = write_takes(Path(out), stem, result.takes, titles, generator.fps, cap, speech)
     return {
-        "frames": len(mel),
-        "seconds": len(mel) / model.spec["fps"],
-        "streams": streams,
-        "sampler": choice.label(model.diffusion),
-        "seconds_per_frame": elapsed / len(mel),
-        "retarget": None if rig is None else rig.record(),
+        **result.settings,
+        "retarget": None if result.rig is None else result.rig.record(),
         "files": [str(f) for f in files],
         "preview": preview,
     }
@@ -249,6 +265,7 @@ def file_quaternions(model, poses: np.ndarray, joints: list[str]) -> np.ndarray:
     return roma.rotmat_to_unitquat(torch.from_numpy(motion.rotations[:, index])).numpy()
 
 
+@command
 def gesture_stream(
     ckpt: str,
     audio: str,
@@ -296,8 +313,7 @@ def gesture_stream(
             raise WalkdiffError("--rate is for raw PCM on stdin (--audio -); a WAV file gives its own rate")
         decoder, chunks = WavDecoder(audio, spec.get("sample_rate")), None
     stem, out = ("stdin" if from_stdin else Path(audio).stem), output_folder(out)
-    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
-    targets = [out / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
+    titles, targets = bvh_names(out, stem, seed, streams)
     check_free(targets, overwrite)
     chunks = chunks if from_stdin else read_growing(audio, idle)  # opened once the outputs are free
 
@@ -445,10 +461,14 @@ def evaluate_gesture(
     sampler: str = "ddpm",
     steps: int | None = None,
     eta: float = 0.0,
+    to: str | None = None,
+    to_map: str | None = None,
 ) -> dict:
     """`walkdiff evaluate-gesture`: every metric on the held-out part of each take, with 95% intervals
-    over the samples, into report.json."""
+    over the samples, into report.json; the per-take BVH and previews played by `to` (+ `to_map`) when
+    given (the metrics are on the model's skeleton)."""
     choice = SamplerChoice(sampler, steps, eta)
+    rig = TargetRig.of(to, to_map)
     if samples < 1:
         raise WalkdiffError(f"--samples must be >= 1, got {samples}")
     if not 0 < pck_threshold < np.inf:
@@ -504,6 +524,7 @@ def evaluate_gesture(
             model,
             [truth_features, smooth[0], raw[0]],
             ["truth", "smoothed", "generated"],
+            rig=rig,
         )
         rows.append(row)
     report = {
@@ -512,6 +533,7 @@ def evaluate_gesture(
         "samples": samples,
         "bootstrap": BOOTSTRAP,
         "seed": seed,
+        "retarget": None if rig is None else rig.record(),
         "pck_threshold_m": pck_threshold,
         "beat_sigma_s": BEAT_SIGMA,
         "shift_s": SHIFT_SECONDS,

@@ -34,6 +34,7 @@ from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.resample import resample
 from walkdiff.motion.take import Take
+from walkdiff.motion.target_rig import TargetRig
 
 COMMANDS = ("direction", "speed", "style", "style_clips")
 CONTROL_FIELDS = (*COMMANDS, "character", "frames", "record")
@@ -119,19 +120,26 @@ def take_files(out: Path, characters: int, name: str = "take") -> list[Path]:
 
 
 def write_takes(
-    out: Path, walker: WalkController, manifest: dict, fps: float | None = None, name: str = "take"
+    out: Path,
+    walker: WalkController,
+    manifest: dict,
+    fps: float | None = None,
+    name: str = "take",
+    rig: TargetRig | None = None,
 ) -> list[Path]:
-    """Each character's recorded frames as BVH and glb (at `fps`, default the model's), and take.json
-    (`name`.json): all or none."""
+    """Each character's recorded frames as BVH and glb (at `fps`, default the model's; played by `rig`
+    when given, --to), and take.json (`name`.json): all or none."""
     files = take_files(out, walker.characters, name)
     with output_set(out):
         for k in range(walker.characters):
             take = walker.take(k)
             if fps is not None and abs(fps - take.fps) > 1e-9:
                 take = Take(resample(take.motion, fps), take.profile)
+            take = take if rig is None else take.retarget(rig)
             write_bvh(files[2 * k], take.motion)
             write_glb(files[2 * k + 1], take.canonical(), take.metres_per_unit)
-        write_json(files[-1], manifest | {"files": [str(f) for f in files]})
+        retarget = {} if rig is None else {"retarget": rig.record()}
+        write_json(files[-1], manifest | retarget | {"files": [str(f) for f in files]})
     return files
 
 
@@ -266,6 +274,7 @@ def play(
         )
     if out is None:
         raise WalkdiffError("--out: give the folder for take.bvh, take.glb and take.json")
+    rig = TargetRig.of(steering.pop("to", None), steering.pop("to_map", None))
     out = output_folder(out)
     check_free(take_files(out, 1), overwrite)
     walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, **steering)
@@ -302,7 +311,7 @@ def play(
         "generation_seconds": round(time.perf_counter() - started, 2),
         "keys_held_at_end": sorted(replay.keys.held), "commands": log,
     }  # fmt: skip
-    write_takes(out, walker, manifest, fps)
+    write_takes(out, walker, manifest, fps, rig=rig)
     return {k: v for k, v in manifest.items() if k != "commands"} | {
         "files": [str(f) for f in take_files(out, 1)]
     }
@@ -365,6 +374,11 @@ def control(
     stdout as soon as it is made; with `out`, the recorded take written at the end (also when a bad line
     stops it: the frames made so far are kept). `steering`: as `play`'s."""
     where = "-"
+    rig = TargetRig.of(steering.pop("to", None), steering.pop("to_map", None))
+    if rig is not None and out is None:
+        raise WalkdiffError(
+            "--to plays the take written with --out; give --out (the live lines stay on the model's skeleton)"
+        )
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, characters), overwrite)
@@ -397,7 +411,7 @@ def control(
             "source": "stdin", "frames": walker.frame, "recorded_frames": len(walker.kept),
             "error": None if end.error is None else str(end.error) or "interrupted", "commands": log,
         }  # fmt: skip
-        files = write_takes(folder, walker, manifest)
+        files = write_takes(folder, walker, manifest, rig=rig)
     if end.error is not None:
         raise stopped(end.error, walker.frame, files)
     summary = {

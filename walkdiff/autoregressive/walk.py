@@ -10,19 +10,21 @@ from __future__ import annotations
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError, command, python_api
 from walkdiff.common.files import check_free, output_folder, output_set, write_atomic, write_json
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.models.pipeline import Pipeline
+from walkdiff.models.pipeline import Generated, Pipeline, specs_first
 from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, clips_record
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
+from walkdiff.models.style_spec import Style
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
@@ -95,6 +97,21 @@ def path_in_metres(path: Polyline | str | os.PathLike | list | np.ndarray) -> tu
     return checked_polyline(path.tolist() if isinstance(path, np.ndarray) else path), None
 
 
+@dataclass(frozen=True)
+class WalkRequest:
+    """What to walk, checked against the model before any path is read: the style as asked and its
+    file-name label (a timeline, when it changes), the speed asked (m/s; None: the path file's or the
+    style's), the sampler, the example clips' statistics and the rig."""
+
+    spec: Style
+    label: str
+    timeline: StyleTimeline | None
+    speed: float | None
+    sampler: SamplerChoice
+    match: StyleStatistics | None
+    rig: TargetRig | None
+
+
 class PathFollower(Pipeline):
     """A trained PathWalker: `follow` walks a style along a path and returns the walk as a `Take` on the
     training files' skeleton, writing nothing; `walkdiff walk` writes the same walk for the same seed."""
@@ -107,32 +124,95 @@ class PathFollower(Pipeline):
     def styles(self) -> tuple[str, ...]:
         return tuple(self.model.spec["styles"])
 
+    @python_api
     def follow(
         self,
         path: Polyline | str | os.PathLike | list | np.ndarray,
-        style: str,
+        style,
         speed: float | None = None,
         seed: int = 0,
-        sampler: str = "ddpm",
+        sampler: str | SamplerChoice | dict = "ddpm",
         steps: int | None = None,
         eta: float = 0.0,
-        to: TargetRig | str | os.PathLike | None = None,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
         transition: float = DEFAULT_TRANSITION,
         style_clips=None,
         match_clips: float = MATCH_CLIPS,
-    ) -> Take:
+    ) -> Generated:
         """`style` walking along `path` ((x, z) points or a Polyline in metres, or a path file) at `speed`
         m/s: by default the file's, else the style's own pace in the training data. `style` may be a
-        timeline ('neutral@0,old@4s', ramped over `transition` s). `to`: a rig to play it on (its root
-        path is then the walk's scaled by the legs' length ratio). `style_clips`: example clips whose
-        pose statistics the walk takes on as well, at `match_clips` (docs/walking.md)."""
-        choice = SamplerChoice(sampler, steps, eta)
-        rig = TargetRig.of(to)
-        match = clip_statistics(self.model, style_clips, match_clips)
+        timeline ('neutral@0,old@4s' or [(0, 'neutral'), (4, 'old')], ramped over `transition` s). `to`
+        (+ `to_map`): a rig to play it on (its root path is then the walk's scaled by the legs' length
+        ratio). `style_clips`: example clips whose pose statistics the walk takes on as well, at
+        `match_clips` (docs/walking.md). The result reads as its one take."""
+        request = self.request(
+            style, speed, sampler, steps, eta, to, to_map, transition, style_clips, match_clips
+        )
+        return self.walk(request, path, seed)
+
+    @python_api
+    def request(
+        self,
+        style,
+        speed: float | None = None,
+        sampler: str | SamplerChoice | dict = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
+        transition: float = DEFAULT_TRANSITION,
+        style_clips=None,
+        match_clips: float = MATCH_CLIPS,
+    ) -> WalkRequest:
+        """What `follow` will walk, checked against the model before any path is read."""
+        spec = Style.of(style, style_clips, match_clips, transition)
+        choice = SamplerChoice.of(sampler, steps, eta).unguided()
+        rig = TargetRig.of(to, to_map)
+        if spec.labels is None:
+            raise WalkdiffError("no style given: pass --style NAME (the walker's style is a label's)")
+        self.check(spec.labels, speed)
+        match = clip_statistics(self.model, spec.clips, spec.match)
+        timeline = parse_timeline(self.model, spec.labels, spec.transition)
+        label = spec.labels if timeline is None else timeline.label
+        return WalkRequest(spec, label, timeline, speed, choice, match, rig)
+
+    def walk(self, request: WalkRequest, path, seed: int = 0) -> Generated:
+        """`follow`'s work on a checked request: the take, and what the manifest records of it."""
         metres, file_speed = path_in_metres(path)
-        speed = file_speed if speed is None else speed
-        motion, _ = self.walk_along(metres, style, speed, seed, choice, transition, match)
-        return self.take(motion, rig)
+        started = time.perf_counter()
+        speed = file_speed if request.speed is None else request.speed
+        motion, speed_m_s = self.walk_along(
+            metres, request.spec.labels, speed, seed, request.sampler, request.spec.transition, request.match
+        )
+        elapsed = time.perf_counter() - started
+        take, scale = self.take(motion), 1.0  # on a rig: the model's path times the legs' ratio in metres
+        if request.rig is not None:
+            scale = request.rig.retargeter(take.motion, take.profile).metric_leg_ratio
+            take = take.retarget(request.rig)
+        clips = request.spec.clips
+        settings = {
+            "style": request.spec.labels,
+            "style_clips": clips_record(clips),
+            "match_clips": request.spec.match if clips else None,
+            "path": str(path) if isinstance(path, str | os.PathLike) else "points",
+            "path_length_m": metres.length,
+            "speed_m_s": speed_m_s,
+            "seed": seed,
+            "sampler": request.sampler.label(self.model.diffusion),
+            "frames": motion.num_frames,
+            "seconds": motion.num_frames / motion.fps,
+            "generation_seconds": round(elapsed, 2),
+            "path_error_m": path_error(
+                metres, motion.root_positions[:, [0, 2]] * self.model.profile.metres_per_unit
+            ),
+            "timeline": None if request.timeline is None else request.timeline.record(),
+        }
+        timing = {"generation_seconds": round(elapsed, 2)}
+        extra = {"metres": metres, "scale": scale, "timeline": request.timeline}
+        return Generated(
+            [take], settings, timing, seed=seed, rig=request.rig, label=request.label, extra=extra
+        )
 
     def controller(
         self,
@@ -256,6 +336,7 @@ def render_walk(gif: Path, take: Take, path: Polyline, cap: PreviewCap, title: s
     )  # fmt: skip
 
 
+@command
 def walk(
     ckpt: str,
     style: str,
@@ -266,73 +347,38 @@ def walk(
     gif: bool = True,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    to: str | None = None,
-    to_map: str | None = None,
-    transition: float = DEFAULT_TRANSITION,
-    style_clips: str | None = None,
-    match_clips: float = MATCH_CLIPS,
+    **request,
 ) -> dict:
-    """`walkdiff walk`: a BVH (+ a GIF of its first `preview_seconds` and a top-down plot) of the style
-    walking along the path file, each frame drawn by the sampler (`SamplerChoice`); `to`: a rig to play
-    it on (`TargetRig`). A timeline `style` also writes its weights' plot."""
-    choice = SamplerChoice(sampler, steps, eta)
-    rig = None if to is None else TargetRig(to, to_map)
+    """`walkdiff walk`: `PathFollower.follow`'s walk as a BVH (+ a GIF of its first `preview_seconds` and
+    a top-down plot) and its manifest; a timeline `style` also writes its weights' plot. `request`: the
+    sampler, rig and style clips, as `PathFollower.request` takes them."""
+    request = specs_first(request)
     cap = PreviewCap(preview_seconds) if gif else None
     follower = PathFollower.load(ckpt)
-    model = follower.model
-    follower.check(style, speed)  # before the path file is read
-    match = clip_statistics(follower.model, style_clips, match_clips)
-    timeline = parse_timeline(model, style, transition)
-    name = style if timeline is None else timeline.label
-    metres, file_speed = read_path(path)
-    unit = model.profile.metres_per_unit
+    request = follower.request(style, speed, **request)  # before the path file is read
+    read_path(path)
     out = output_folder(out)
-    stem = f"{name}_{Path(path).stem}"
+    stem = f"{request.label}_{Path(path).stem}"
     bvh = out / f"{stem}.bvh"
     written = [bvh, out / f"{stem}_path.png", out / f"{stem}.json"]
-    written += [out / f"{stem}_timeline.png"] if timeline is not None else []
+    written += [out / f"{stem}_timeline.png"] if request.timeline is not None else []
     check_free(written + ([bvh.with_suffix(".gif"), bvh.with_suffix(".mp4")] if gif else []), overwrite)
 
-    started = time.perf_counter()
     # Refused here (a path too long for memory, a style without a speed) before the folder exists.
-    motion, speed_m_s = follower.walk_along(
-        metres, style, speed or file_speed, seed, choice, transition, match
-    )
-    elapsed = time.perf_counter() - started
-    root_xz = motion.root_positions[:, [0, 2]]
+    result = follower.walk(request, path, seed)
+    take, extra = result.take, result.extra
     with output_set(out):
-        take = follower.take(motion)
-        scale = 1.0  # the walk's path on the rig: the model's times the legs' ratio in metres
-        if rig is not None:
-            scale = rig.retargeter(take.motion, take.profile).metric_leg_ratio
-            take = take.retarget(rig)
-        files = _write_walk(out, stem, take, metres, name, cap, scale)
-        if timeline is not None:
-            seconds = motion.num_frames / motion.fps
-            files.append(
-                plot_timeline(out / f"{stem}_timeline.png", timeline, list(follower.styles), seconds)
-            )
+        files = _write_walk(out, stem, take, extra["metres"], request.label, cap, extra["scale"])
+        if request.timeline is not None:
+            seconds = take.num_frames / take.fps
+            timeline_png = out / f"{stem}_timeline.png"
+            files.append(plot_timeline(timeline_png, request.timeline, list(follower.styles), seconds))
         manifest = {
             "checkpoint": str(ckpt),
-            "style": style,
-            "style_clips": clips_record(style_clips),
-            "match_clips": match_clips if style_clips else None,
-            "path": str(path),
-            "path_length_m": metres.length,
-            "speed_m_s": speed_m_s,
-            "seed": seed,
-            "sampler": choice.label(model.diffusion),
-            "frames": motion.num_frames,
-            "seconds": motion.num_frames / motion.fps,
-            "generation_seconds": round(elapsed, 2),
-            "path_error_m": path_error(metres, root_xz * unit),
-            "timeline": None if timeline is None else timeline.record(),
-            "retarget": None if rig is None else rig.record(),
+            **result.settings,
+            "retarget": None if result.rig is None else result.rig.record(),
             "files": [str(f) for f in files],
-            "preview": None if cap is None else cap.describe(motion.num_frames, motion.fps),
+            "preview": None if cap is None else cap.describe(take.num_frames, take.fps),
         }
         write_json(out / f"{stem}.json", manifest)
     return manifest
@@ -408,6 +454,7 @@ def _point(line: bytes, where: str, number: int, json) -> list[float]:
     return [float(data["x"]), float(data["z"])]
 
 
+@command
 def walk_stream(
     ckpt: str,
     style: str,
@@ -439,9 +486,12 @@ def walk_stream(
 
     follower = PathFollower.load(ckpt)
     model = follower.model
-    index = follower.check(style, speed)
-    if index < 0:
+    request = follower.request(
+        style, speed, sampler, steps, eta, style_clips=style_clips, match_clips=match_clips
+    )
+    if request.timeline is not None:
         raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is not for --stream; give one style")
+    index = follower.styles.index(request.label)
     unit, fps = model.profile.metres_per_unit, model.spec["fps"]
     units_per_s = float(model.style_speed[index]) if speed is None else speed / unit
     if not units_per_s > 0:
@@ -451,10 +501,7 @@ def walk_stream(
     bvh = out / f"{stem}.bvh"
     check_free([bvh], overwrite)
     chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    match = clip_statistics(model, style_clips, match_clips)
-    stream = WalkStream(
-        model, index, units_per_s, seed, sampler=SamplerChoice(sampler, steps, eta), match=match
-    )
+    stream = WalkStream(model, index, units_per_s, seed, sampler=request.sampler, match=request.match)
     names = model.profile.skeleton.names
     emit({
         "fps": fps, "joints": names, "units_per_metre": 1 / unit,

@@ -124,6 +124,7 @@ def add_evaluate_gesture(sub) -> None:
     )
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing report")
+    rig_options(p)
     p.set_defaults(run=run_evaluate_gesture)
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from walkdiff.cli.options import GUIDANCE_HELP, MAX_GUIDANCE, SAMPLER_HELP, SAMPLERS, keyword_options
-from walkdiff.common.arguments import count, number
+from walkdiff.cli.options import SAMPLER_HELP, keyword_options, sampler_options
+from walkdiff.common.arguments import count
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.evaluation.plan import FULL, QUICK
 
@@ -66,12 +66,11 @@ def add_parsers(sub) -> None:
     )  # fmt: skip
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--real-only", action="store_true", help="only the real reference rows")
-    p.add_argument(
-        "--sampler", choices=SAMPLERS, default=None,
-        help=f"{SAMPLER_HELP} (--quick: {QUICK.sampler}, {QUICK.steps} steps)",
+    # No default sampler here: the full protocol's is ddpm, --quick's its own (walkdiff.evaluation.plan).
+    sampler_options(
+        p, default=None, guidance=True, with_eta=False,
+        help=f"{SAMPLER_HELP} (default ddpm; --quick: {QUICK.sampler}, {QUICK.steps} steps)",
     )  # fmt: skip
-    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-    p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
     p.add_argument("--split", choices=("test", "val"), default="test", help="real reference split")
     p.add_argument("--contents", default=None, help="content groups (default: the model's; or walk)")
     p.add_argument("--root", default=None, help="data root (default: as in the checkpoint)")

@@ -33,18 +33,13 @@ def add_parsers(sub) -> None:
         "retarget", help="play a BVH clip on another humanoid rig: your rig's BVH or mixamo, unreal, smpl"
     )
     p.add_argument("input", help="the clip to retarget (BVH)")
-    p.add_argument(
-        "--to",
-        required=True,
-        help="the target rig: a BVH of it (its first frame standing) or mixamo, unreal, smpl",
-    )
+    rig_options(p, required=True)
     p.add_argument("--out", required=True, help="the output, .bvh (the target's skeleton) or .glb")
     p.add_argument(
         "--feet", choices=("follow", "pin", "off"), default="follow",
         help="planted feet: move as the source's did (follow, default), held still (pin), no foot IK (off)",
     )  # fmt: skip
     p.add_argument("--source-map", default=None, help="YAML/JSON overrides of the input's humanoid map")
-    p.add_argument("--target-map", default=None, help="YAML/JSON overrides of the target's humanoid map")
     p.add_argument(
         "--reference-frame", type=count(0), default=None,
         help="the input's frame to align on (default: its rest pose; a standing frame when that is no pose)",
@@ -177,7 +172,7 @@ def run_retarget(args: argparse.Namespace) -> None:
             args.out,
             feet=args.feet,
             source_map=args.source_map,
-            target_map=args.target_map,
+            target_map=args.to_map,
             reference_frame=args.reference_frame,
             overwrite=args.overwrite,
             force=args.force,
@@ -203,7 +198,7 @@ def run_scan(args: argparse.Namespace) -> None:
     timing = options.pop("timing")
     print(scan(**options), flush=True)
     if args.out is not None and timing:
-        from walkdiff.bench.plan import plan, plan_lines
+        from walkdiff.callbacks.plan import plan, plan_lines
         from walkdiff.data.scan import config_paths
 
         print("\n".join(plan_lines(plan(list(config_paths(args.folder, args.out, args.name))))))

@@ -6,13 +6,10 @@ from __future__ import annotations
 import argparse
 
 from walkdiff.cli.options import (
-    GUIDANCE_HELP,
-    MAX_GUIDANCE,
     PREVIEW_HELP,
-    SAMPLER_HELP,
-    SAMPLERS,
     keyword_options,
     rig_options,
+    sampler_options,
 )
 from walkdiff.common.arguments import count, number
 
@@ -60,10 +57,7 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--content", default="walk", help="content group (default walk)")
     p.add_argument("--seed", type=count(0), default=0)
-    p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=SAMPLER_HELP)
-    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-    p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
-    p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
+    sampler_options(p, guidance=True)
     p.add_argument(
         "--overlap",
         type=count(0),

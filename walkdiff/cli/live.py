@@ -7,8 +7,15 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, keyword_options, steering_options, walker_clip_options
+from walkdiff.cli.options import (
+    keyword_options,
+    rig_options,
+    sampler_options,
+    steering_options,
+    walker_clip_options,
+)
 from walkdiff.common.arguments import count, number
+from walkdiff.common.errors import WalkdiffError
 
 
 def add_parsers(sub) -> None:
@@ -28,12 +35,8 @@ def walker_options(p: argparse.ArgumentParser) -> None:
     )
     walker_clip_options(p)
     p.add_argument("--seed", type=count(0), default=0)
-    p.add_argument(
-        "--sampler", choices=SAMPLERS, default="ddim",
-        help="per-frame sampler (default ddim, 10 steps, eta 1: real time with DDPM's quality)",
-    )  # fmt: skip
-    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-    p.add_argument("--eta", type=number(0, 1), default=None, help="DDIM noise (default 1)")
+    real_time = "per-frame sampler (default ddim, 10 steps, eta 1: real time with DDPM's quality)"
+    sampler_options(p, "ddim", real_time, eta=None)
     steering_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
@@ -51,6 +54,7 @@ def add_control(sub) -> None:
         "--out", default=None,
         help="folder for the recorded take at the end (take.bvh, take.glb, take.json); default: none",
     )  # fmt: skip
+    rig_options(p)
     p.set_defaults(run=run_control)
 
 
@@ -78,6 +82,7 @@ def add_play(sub) -> None:
         "--fps", type=number(0, above=True), default=None,
         help="frame rate of the written take (default the model's; it generates at its own)",
     )  # fmt: skip
+    rig_options(p)
     p.set_defaults(run=run_play)
 
 
@@ -94,6 +99,11 @@ def run_play(args: argparse.Namespace) -> None:
     if options["script"] is None:
         from walkdiff.autoregressive.play_page import serve_page
 
+        if options.pop("to") is not None or options.pop("to_map") is not None:
+            raise WalkdiffError(
+                "--to is for play --script (the page records on the model's skeleton); retarget its takes "
+                "with `walkdiff retarget BVH --to RIG --out OUT`"
+            )
         del options["script"]
         summary = serve_page(**options)
     else:

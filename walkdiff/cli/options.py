@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from walkdiff.common.arguments import count, number
 
 # diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
-# styled.generation.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
+# diffusion.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
 MAX_GUIDANCE = 100.0
 # motion.rigs.RIGS, repeated for the same reason (a test keeps them equal).
 RIG_NAMES = ("mixamo", "unreal", "smpl")
@@ -30,11 +31,29 @@ PROFILE_HELP = (
 )
 
 
-def frame_sampler_options(p: argparse.ArgumentParser) -> None:
-    """Options of the per-frame sampler of DiffMotion and the path walker."""
-    p.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help=FRAME_SAMPLER_HELP)
+def sampler_options(
+    p: argparse.ArgumentParser,
+    default: str = "ddpm",
+    help: str = SAMPLER_HELP,
+    eta: float | None = 0.0,
+    guidance: bool = False,
+    with_eta: bool = True,
+) -> None:
+    """The sampler spec (diffusion.SamplerChoice) as options, the same names and checks on every command:
+    --sampler, --steps, --eta (`eta`: its default; None: the sampler's own) and, for a model with
+    classifier-free guidance, --guidance."""
+    p.add_argument("--sampler", choices=SAMPLERS, default=default, help=help)
     p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
-    p.add_argument("--eta", type=number(0, 1), default=0.0, help="DDIM noise (0: deterministic)")
+    if with_eta:
+        eta_help = "DDIM noise (0: deterministic)" if eta == 0 else "DDIM noise (default 1)"
+        p.add_argument("--eta", type=number(0, 1), default=eta, help=eta_help)
+    if guidance:
+        p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
+
+
+def frame_sampler_options(p: argparse.ArgumentParser) -> None:
+    """Options of the per-frame sampler of DiffMotion and the path walker (no guidance)."""
+    sampler_options(p, help=FRAME_SAMPLER_HELP)
 
 
 def steering_options(p: argparse.ArgumentParser) -> None:
@@ -78,13 +97,26 @@ def keyword_options(args: argparse.Namespace) -> dict:
     return {key: value for key, value in vars(args).items() if key not in ("command", "what")}
 
 
-def rig_options(p: argparse.ArgumentParser) -> None:
-    """--to and --to-map: the rig the written motion is played on (walkdiff.motion.target_rig)."""
+def rig_options(p: argparse.ArgumentParser, required: bool = False) -> None:
+    """--to and --to-map: the rig the written motion is played on (walkdiff.motion.target_rig), the same
+    on every command that writes motion. --target-map, retarget's old name of --to-map, still works (and
+    warns)."""
     p.add_argument(
-        "--to", default=None, metavar="RIG",
+        "--to", default=None, metavar="RIG", required=required,
         help="write the motion on another humanoid rig: a BVH of your rig (its first frame is the pose it is "
         f"aligned on) or a built-in rig ({', '.join(RIG_NAMES)}); see docs/motion.md#retargeting",
     )  # fmt: skip
     p.add_argument(
-        "--to-map", default=None, help="with --to: YAML/JSON of humanoid map overrides (role: joint name)"
-    )
+        "--to-map", "--target-map", default=None, action=ToMap,
+        help="with --to: YAML/JSON of humanoid map overrides (role: joint name)",
+    )  # fmt: skip
+
+
+class ToMap(argparse.Action):
+    """--to-map; said as --target-map (its name on `retarget` before the options were one group), it
+    warns and works."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if option_string == "--target-map":
+            print("walkdiff: warning: --target-map is deprecated; use --to-map", file=sys.stderr)
+        setattr(namespace, self.dest, values)

@@ -4,6 +4,7 @@ DPM-Solver++), guidance."""
 from walkdiff.diffusion.gaussian import PREDICTIONS, GaussianDiffusion, extract
 from walkdiff.diffusion.samplers import (
     DEFAULT_STEPS,
+    MAX_GUIDANCE,
     SAMPLERS,
     Progress,
     SamplerChoice,
@@ -24,6 +25,7 @@ from walkdiff.diffusion.schedules import SCHEDULES, beta_schedule, cosine_alphas
 
 __all__ = [
     "DEFAULT_STEPS",
+    "MAX_GUIDANCE",
     "SAMPLERS",
     "SamplerChoice",
     "PREDICTIONS",

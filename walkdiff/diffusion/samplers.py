@@ -59,17 +59,23 @@ class SamplerSteps:
 
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
 DEFAULT_STEPS = 10  # DDIM / DPM-Solver++ steps when none are given
+# Guidance weights that still make motion are a few (1: none); far above, every sample is garbage and
+# weights like 1e30 overflow to NaN. cli/options.py repeats it so that the parser imports no torch.
+MAX_GUIDANCE = 100.0
 
 
 @dataclass(frozen=True)
 class SamplerChoice:
-    """A sampler as a user names it: ancestral DDPM over all T trained steps, DDIM over `steps` of them
-    (`eta` its noise: 0 deterministic, 1 with every step kept is DDPM), or DPM-Solver++(2M) over `steps`
-    spaced in log-SNR. Options a sampler does not use are refused, naming the command-line option."""
+    """How a model samples, as a user names it (the one sampler spec of the API and every command):
+    ancestral DDPM over all T trained steps, DDIM over `steps` of them (`eta` its noise: 0 deterministic,
+    1 with every step kept is DDPM), or DPM-Solver++(2M) over `steps` spaced in log-SNR; `guidance` the
+    classifier-free guidance weight (1: none; models without it take 1 only). Options a sampler does not
+    use are refused."""
 
     name: str = "ddpm"
     steps: int | None = None  # DDIM / DPM-Solver++ steps (default DEFAULT_STEPS); unused by DDPM
     eta: float = 0.0  # DDIM noise
+    guidance: float = 1.0
 
     def __post_init__(self) -> None:
         if self.name not in SAMPLERS:
@@ -84,6 +90,39 @@ class SamplerChoice:
             raise WalkdiffError("--steps applies to ddim and dpmpp: ddpm always takes every trained step")
         if not (math.isfinite(self.eta) and 0 <= self.eta <= 1):
             raise WalkdiffError(f"--eta must be in [0, 1], got {self.eta}")
+        if not (math.isfinite(self.guidance) and 0 <= self.guidance <= MAX_GUIDANCE):
+            raise WalkdiffError(
+                f"--guidance must be a number in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful), "
+                f"got {self.guidance:g}"
+            )
+
+    @classmethod
+    def of(cls, sampler=None, steps: int | None = None, eta: float = 0.0, guidance: float = 1.0):
+        """The spec from what a caller gave: a name with the other settings beside it, a dict of them, or
+        a SamplerChoice (then alone: its own steps, eta and guidance are the ones used)."""
+        if isinstance(sampler, SamplerChoice):
+            if (steps, eta, guidance) != (None, 0.0, 1.0):
+                raise WalkdiffError("sampler: give steps, eta and guidance inside the SamplerChoice")
+            return (
+                sampler
+                if type(sampler) is cls
+                else cls(sampler.name, sampler.steps, sampler.eta, sampler.guidance)
+            )
+        if isinstance(sampler, dict):
+            return cls.of(cls(**sampler), steps, eta, guidance)
+        return cls("ddpm" if sampler is None else sampler, steps, eta, guidance)
+
+    def record(self) -> dict:
+        """What a manifest says of the sampler."""
+        return {"sampler": self.name, "steps": self.steps, "eta": self.eta, "guidance": self.guidance}
+
+    def unguided(self) -> SamplerChoice:
+        """Itself, for a model without classifier-free guidance (the frame models): other weights refused."""
+        if self.guidance != 1:
+            raise WalkdiffError(
+                f"--guidance: this model has no classifier-free guidance (1 only), got {self.guidance:g}"
+            )
+        return self
 
     def table(self, diffusion: GaussianDiffusion) -> SamplerSteps:
         """The per-step constants of this sampler over `diffusion`'s trained steps."""

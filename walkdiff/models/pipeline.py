@@ -4,10 +4,14 @@ skeleton of the files it was trained on, and its clips handed back as `Take`s on
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
+
+import torch
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
+from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.base import MotionModule
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.resample import resample
@@ -16,12 +20,63 @@ from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
 
 
+def specs_first(options: dict) -> dict:
+    """A command's request options with the sampler and the rig read into their specs (SamplerChoice,
+    TargetRig) first: a bad sampler or rig is said before the model loads."""
+    sampler = {k: options.pop(k) for k in ("steps", "eta", "guidance") if k in options}
+    sampler = SamplerChoice.of(options.pop("sampler", "ddpm"), **sampler)
+    to = TargetRig.of(options.pop("to", None), options.pop("to_map", None))
+    return options | {"sampler": sampler, "to": to}
+
+
+@dataclass
+class Generated:
+    """What one call of the API made: the takes, the settings used (as the manifest records them) and
+    the timings in seconds. It reads as the list of its takes (`for take in model.sample(...)`), and a
+    result of one take as that take (`model.transfer(...).to_bvh(...)`)."""
+
+    takes: list[Take]
+    settings: dict
+    timing: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    seed: int = 0
+    rig: TargetRig | None = None  # the rig the takes are played on
+    label: str = ""  # what file names are made of
+    extra: dict = field(default_factory=dict)  # what a command writes beside the takes (a timeline ...)
+
+    def __iter__(self):
+        return iter(self.takes)
+
+    def __len__(self) -> int:
+        return len(self.takes)
+
+    def __getitem__(self, index):
+        return self.takes[index]
+
+    @property
+    def take(self) -> Take:
+        """The one take of a result of one."""
+        if len(self.takes) != 1:
+            raise WalkdiffError(f"this result holds {len(self.takes)} takes; index them or iterate")
+        return self.takes[0]
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.take, name)
+
+
 class Pipeline:
     """A trained model behind one object (StyledGenerator, PathFollower, GestureGenerator) whose methods
     return motion instead of writing it."""
 
     def __init__(self, model: MotionModule):
         self.model = model
+
+    def to(self, device: str | torch.device) -> Pipeline:
+        """Moves the model to `device` ('cpu', 'cuda'); itself, as a torch module does."""
+        self.model.to(device)
+        return self
 
     @property
     def fps(self) -> float:
@@ -43,6 +98,8 @@ class Pipeline:
         """A clip to restyle or take a style from, as the model takes it: checked to be on its skeleton,
         canonical, at its fps. `what` names the option in errors."""
         path = None
+        if isinstance(motion, Generated):  # a result of one take: that take
+            motion = motion.take
         if isinstance(motion, Take):
             motion = motion.motion
         elif isinstance(motion, str | os.PathLike):

@@ -42,6 +42,11 @@ class StyleExample:
         return {"clip": self.source, "weight": self.weight, "code": [round(c, 5) for c in self.code]}
 
 
+def clip_name(clip) -> str:
+    """How errors and manifests name an example clip: its path, or what it is."""
+    return str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
+
+
 def check_match_clips(value: float) -> None:
     """--match-clips is a share in [0, 1]."""
     if not (np.isfinite(value) and 0 <= value <= 1):
@@ -122,7 +127,7 @@ def clip_statistics(model, style_clips, match_clips: float = MATCH_CLIPS) -> Sty
     check_match_clips(match_clips)
     weighted = []
     for clip, weight in parse_style_clips(style_clips):
-        where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
+        where = clip_name(clip)
         windows = example_windows(model, Pipeline(model).source(clip, "--style-clip"), where)
         weighted.append((StyleStatistics.of(windows), weight))
     return StyleStatistics.mixed(weighted, match_clips)

@@ -1,8 +1,9 @@
 """Forward kinematics: local joint rotations and translations -> world positions (and rotations).
 
-Pure torch, batched over any leading dimensions and differentiable, so that models can put losses on
-joint positions. The joint loop relies on walkdiff's ordering convention (a parent precedes its
-children), which makes one pass over the joints enough.
+One implementation for torch and numpy: batched over any leading dimensions, differentiable on torch
+tensors (models put losses on joint positions), and on numpy arrays several times faster for the few
+frames at a time a live controller poses. The joint loop relies on walkdiff's ordering convention (a
+parent precedes its children), which makes one pass over the joints enough.
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from walkdiff.motion.skeleton import Motion
 
 
 def forward_kinematics(
-    rotations: torch.Tensor,
-    positions: torch.Tensor,
+    rotations: torch.Tensor | np.ndarray,
+    positions: torch.Tensor | np.ndarray,
     parents: Sequence[int] | np.ndarray | torch.Tensor,
     return_rotations: bool = False,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
@@ -26,7 +27,7 @@ def forward_kinematics(
     `positions[..., j, :]` is joint j's translation in its parent's frame (for the root: its world
     position). Leading dimensions of `rotations` and `positions` broadcast against each other, so a
     (J, 3) offset table can drive a (B, F, J, 3, 3) batch of rotations. With `return_rotations` the
-    world rotations (..., J, 3, 3) come back too.
+    world rotations (..., J, 3, 3) come back too. Numpy arrays in, numpy arrays out.
     """
     parents = [int(p) for p in parents]
     num_joints = len(parents)
@@ -48,14 +49,23 @@ def forward_kinematics(
             raise ValueError(f"joint {joint} has parent {parent}: parents must precede their children")
         parent_rot = world_rot[parent]
         world_rot.append(parent_rot @ local_rot)
-        world_pos.append((parent_rot @ local_pos.unsqueeze(-1)).squeeze(-1) + world_pos[parent])
+        world_pos.append((parent_rot @ local_pos[..., None])[..., 0] + world_pos[parent])
     # Leading dimensions may differ between joints (the root's translation is per frame, an offset
     # table is not), so broadcast before stacking.
-    shape = torch.broadcast_shapes(rotations.shape[:-3], positions.shape[:-2])
-    positions_out = torch.stack([p.expand(*shape, 3) for p in world_pos], dim=-2)
+    numpy = isinstance(rotations, np.ndarray)
+    shape = (np if numpy else torch).broadcast_shapes(rotations.shape[:-3], positions.shape[:-2])
+    positions_out = _stacked(world_pos, shape, (3,))
     if not return_rotations:
         return positions_out
-    return positions_out, torch.stack([r.expand(*shape, 3, 3) for r in world_rot], dim=-3)
+    return positions_out, _stacked(world_rot, shape, (3, 3))
+
+
+def _stacked(parts: list, shape: tuple[int, ...], tail: tuple[int, ...]):
+    """Per-joint arrays or tensors broadcast to `shape` + `tail`, stacked on a joint axis before `tail`."""
+    axis = -len(tail) - 1
+    if isinstance(parts[0], np.ndarray):
+        return np.stack([np.broadcast_to(x, (*shape, *tail)) for x in parts], axis=axis)
+    return torch.stack([x.expand(*shape, *tail) for x in parts], dim=axis)
 
 
 def motion_world_positions(motion: Motion) -> np.ndarray:

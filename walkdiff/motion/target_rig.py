@@ -59,9 +59,20 @@ class TargetRig:
         self._prepared: list[Retargeter] = []
 
     @classmethod
-    def of(cls, to: TargetRig | str | os.PathLike | Motion | Skeleton | None) -> TargetRig | None:
-        """`to` as a TargetRig (itself when it is one; None stays None)."""
-        return to if to is None or isinstance(to, TargetRig) else cls(to)
+    def of(
+        cls,
+        to: TargetRig | str | os.PathLike | Motion | Skeleton | None,
+        to_map: HumanoidMap | dict | str | os.PathLike | None = None,
+    ) -> TargetRig | None:
+        """The rig spec from what a caller gave (`to=` and `to_map=` of the API, --to and --to-map of the
+        commands): itself when it is a TargetRig (then with its own map); None stays None."""
+        if to is None or isinstance(to, TargetRig):
+            if to_map is not None:
+                raise WalkdiffError(
+                    "--to-map needs --to (a rig name or BVH), not " + ("a TargetRig" if to else "none")
+                )
+            return to
+        return cls(to, to_map)
 
     def retargeter(self, source: Motion, profile: SkeletonProfile | None = None) -> Retargeter:
         """The prepared retargeter for clips of `source`'s skeleton (made on first use)."""

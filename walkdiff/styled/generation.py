@@ -15,7 +15,6 @@ styled/pipeline.py puts this behind one object (`walkdiff.load`); styled/command
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,39 +29,23 @@ from walkdiff.motion.representation import FeatureLayout, features_to_positions
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]
-# Guidance weights that still make motion are a few (1: none); far above, every sample is garbage and
-# weights like 1e30 overflow to NaN. cli/options.py repeats it so that the parser imports no torch.
-MAX_GUIDANCE = 100.0
 
 
 @dataclass(frozen=True)
-class Sampling:
-    """How windows are denoised: ancestral DDPM over all T steps, or DDIM or DPM-Solver++(2M) (dpmpp, the
-    same ODE solved to second order) over `steps` of them."""
+class Sampling(SamplerChoice):
+    """The sampler spec of the window generator, and the example clips' statistics each window is moved to
+    (--style-clip, models/style_statistics.py), which the request adds."""
 
-    sampler: str = "ddpm"
-    steps: int | None = None  # DDIM / DPM-Solver++ steps (default 10); unused by DDPM
-    eta: float = 0.0  # DDIM noise (0: deterministic)
-    guidance: float = 1.0  # classifier-free guidance weight; 1 is none
-    # example clips' statistics each window is moved to (--style-clip, models/style_statistics.py)
     match: StyleStatistics | None = field(default=None, compare=False)
 
-    def __post_init__(self) -> None:
-        SamplerChoice(self.sampler, self.steps, self.eta)  # its checks and messages: sampler, steps, eta
-        if not (math.isfinite(self.guidance) and 0 <= self.guidance <= MAX_GUIDANCE):
-            raise WalkdiffError(
-                f"--guidance must be a number in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful), "
-                f"got {self.guidance:g}"
-            )
-
-    def record(self) -> dict:
-        """What a manifest says of the sampler (the matched statistics are recorded with their clips)."""
-        return {"sampler": self.sampler, "steps": self.steps, "eta": self.eta, "guidance": self.guidance}
+    @property
+    def sampler(self) -> str:
+        return self.name
 
     @property
     def order(self) -> int:
         """Order of the solver step (step_coefficients): 2 for DPM-Solver++, 1 for DDPM and DDIM."""
-        return 2 if self.sampler == "dpmpp" else 1
+        return 2 if self.name == "dpmpp" else 1
 
 
 # ---------------------------------------------------------------- windows

@@ -8,6 +8,7 @@ seed and settings. The windows, samplers and transfer themselves are in styled/g
 from __future__ import annotations
 
 import os
+import time
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -15,19 +16,22 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.errors import WalkdiffError, python_api
 from walkdiff.common.memory import SAMPLE_BYTES_PER_FRAME, check_frames
-from walkdiff.models.pipeline import Pipeline
+from walkdiff.diffusion import SamplerChoice
+from walkdiff.models.pipeline import Generated, Pipeline
 from walkdiff.models.style_examples import (
     MATCH_CLIPS,
     StyleExample,
     check_match_clips,
+    clip_name,
     example_windows,
     label_code,
     mixed_code,
     parse_style_clips,
 )
 from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_style, parse_timeline
+from walkdiff.models.style_spec import Style
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.footfix import fix_feet as pinned_feet
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
@@ -46,17 +50,29 @@ from walkdiff.styled.generation import (
 
 @dataclass(frozen=True)
 class Request:
-    """What to make, checked against the model before any work: the style (an id, or mixing weights) and
-    its file-name label, the content id, the sampler and how windows are joined."""
+    """What to make, checked against the model before any work: the style as asked, as conditioning (an
+    id, mixing weights or a code) and as a file-name label, the content, the sampler, how windows are
+    joined and the rig to play the clips on."""
 
+    spec: Style
     style: torch.Tensor
     label: str
+    content_name: str
     content: torch.Tensor
     sampling: Sampling
     overlap: int
     blend: int
+    rig: TargetRig | None = None
     examples: tuple[StyleExample, ...] = ()
     timeline: StyleTimeline | None = None
+
+    def record(self) -> dict:
+        """The style as a manifest records it."""
+        return {
+            "style": self.spec.labels,
+            "style_clips": [e.record() for e in self.examples],
+            "match_clips": self.spec.match if self.examples else None,
+        }
 
     def pins_feet(self, fix_feet: bool | None) -> bool:
         """Whether feet are pinned during contacts: as asked, or by default where example clips' statistics
@@ -97,6 +113,21 @@ def check_finite(clips: list[Motion], sampling: Sampling) -> None:
     )
 
 
+# The order of a sample manifest's settings.
+SAMPLE_SETTINGS = (
+    "style", "style_clips", "match_clips", "timeline", "content", "num", "frames", "fps", "sampler", "steps",
+    "eta", "guidance", "overlap", "blend", "ground", "fix_feet", "distilled_jumps",
+)  # fmt: skip
+
+
+def root_path_error(source: Motion, result: Motion) -> dict[str, float]:
+    """Mean horizontal distance between the two root paths, absolute and relative to the distance walked."""
+    a, b = source.root_positions[:, [0, 2]], result.root_positions[:, [0, 2]]
+    walked = float(np.linalg.norm(np.diff(a, axis=0), axis=1).sum())
+    error = float(np.linalg.norm(a - b, axis=1).mean())
+    return {"mean": error, "walked": walked, "relative": error / walked if walked > 0 else float("nan")}
+
+
 def _batch(labels: torch.Tensor, count: int) -> torch.Tensor:
     """One style id () or mixing vector (S,), or one content id, repeated for a batch."""
     return labels.expand(count, *labels.shape).clone()
@@ -118,14 +149,15 @@ class StyledGenerator(Pipeline):
     def contents(self) -> tuple[str, ...]:
         return tuple(self.model.spec["contents"])
 
+    @python_api
     def sample(
         self,
-        style: str | None = None,
+        style=None,
         content: str = "walk",
         num: int = 1,
         frames: int = 300,
         seed: int = 0,
-        sampler: str = "ddpm",
+        sampler: str | SamplerChoice | dict = "ddpm",
         steps: int | None = None,
         eta: float = 0.0,
         guidance: float = 1.0,
@@ -133,34 +165,37 @@ class StyledGenerator(Pipeline):
         blend: int | None = None,
         ground: bool = True,
         fix_feet: bool | None = None,
-        to: TargetRig | str | os.PathLike | None = None,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
         match_clips: float = MATCH_CLIPS,
-    ) -> list[Take]:
-        """`num` clips of `frames` frames in `style` (a name, or a mix such as 'angry:0.7,old:0.3'), drawn
-        together as `walkdiff sample` draws them: the same seed and settings give the same clips. `to`: a
-        rig to play them on (`Take.retarget`). `style_clips`: example clips whose style to take, alone or
-        mixed with `style` ('a.bvh:0.7,b.bvh', or a list of paths, Motions or (clip, weight) pairs). A
-        timeline `style` ('neutral@0,old@4s') changes style over time, ramped over `transition` seconds.
-        `match_clips`: how far the clips' pose statistics are matched too (0: their code alone).
-        `fix_feet`: pin feet during contacts (default: where clips' statistics are matched)."""
+    ) -> Generated:
+        """`num` clips of `frames` frames, drawn together as `walkdiff sample` draws them: the same seed
+        and settings give the same clips. `style`: a name, a mix ({'angry': 0.7, 'old': 0.3}, or
+        'angry:0.7,old:0.3'), a timeline ([(0, 'neutral'), (4, 'old')], ramped over `transition` seconds)
+        or a `Style`. `style_clips`: example clips whose style to take, alone or mixed with `style` (paths,
+        Motions, Takes or (clip, weight) pairs); `match_clips`: how far their pose statistics are matched
+        too (0: their code alone). `sampler`: a name with `steps`, `eta`, `guidance`, or a SamplerChoice.
+        `to` (+ `to_map`): a rig to play them on. `fix_feet`: pin feet during contacts (default: where
+        clips' statistics are matched). Returns the takes with the settings used (`Generated`)."""
         check_sample_size(num, frames)
-        sampling = Sampling(sampler, steps, eta, guidance)
-        request = self.request(style, content, sampling, overlap, blend, style_clips, transition, match_clips)
-        rig = TargetRig.of(to)  # a wrong rig is said before any sampling
-        clips = self.generate(request, num, frames, seed, ground, fix_feet)
-        return [self.take(clip, rig) for clip in clips]
+        request = self.request(
+            style, content, sampler, steps, eta, guidance, overlap, blend, to, to_map, style_clips,
+            transition, match_clips,
+        )  # fmt: skip
+        return self.make(request, num, frames, seed, ground, fix_feet)
 
+    @python_api
     def transfer(
         self,
         motion: Motion | Take | str | os.PathLike,
-        style: str | None = None,
+        style=None,
         content: str = "walk",
         strength: float = 0.6,
         keep_trajectory: bool = False,
         seed: int = 0,
-        sampler: str = "ddpm",
+        sampler: str | SamplerChoice | dict = "ddpm",
         steps: int | None = None,
         eta: float = 0.0,
         guidance: float = 1.0,
@@ -168,79 +203,166 @@ class StyledGenerator(Pipeline):
         blend: int | None = None,
         ground: bool = True,
         fix_feet: bool | None = None,
-        to: TargetRig | str | os.PathLike | None = None,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
         style_clips=None,
         match_clips: float = MATCH_CLIPS,
-    ) -> Take:
+    ) -> Generated:
         """A clip (a Motion, a Take or a BVH file, on the training files' skeleton, any frame rate)
         restyled as `walkdiff transfer` does: noised to `strength` of the schedule and denoised in
-        `style`; `keep_trajectory` keeps its root path exactly; `to`: a rig to play it on."""
-        rig = TargetRig.of(to)
-        sampling = Sampling(sampler, steps, eta, guidance)
-        request = self.request(style, content, sampling, overlap, blend, style_clips, match_clips=match_clips)
-        if request.timeline is not None:
-            raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is for sample; transfer takes one style")
-        noised_steps(self.model, strength, request.sampling)  # a bad strength fails before any warning
-        source = self.source(motion)
-        short = self.window_note(source, motion if isinstance(motion, str | os.PathLike) else "the clip")
-        if short is not None:
-            warnings.warn(short, stacklevel=2)
-        result = self.restyled(request, source, strength, keep_trajectory, seed, ground, fix_feet)
-        return self.take(result, rig)
+        `style` (as `sample` takes it, but one style, no timeline); `keep_trajectory` keeps its root path
+        exactly; `to`: a rig to play it on. The result reads as its one take."""
+        request = self.request(
+            style, content, sampler, steps, eta, guidance, overlap, blend, to, to_map, style_clips,
+            match_clips=match_clips,
+        )  # fmt: skip
+        result = self.restyle(request, motion, strength, keep_trajectory, seed, ground, fix_feet)
+        for note in result.warnings:
+            warnings.warn(note, stacklevel=3)
+        return result
 
+    @python_api
     def request(
         self,
-        style: str | None,
-        content: str,
-        sampling: Sampling,
-        overlap: int | None,
-        blend: int | None,
+        style=None,
+        content: str = "walk",
+        sampler: str | SamplerChoice | dict = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        guidance: float = 1.0,
+        overlap: int | None = None,
+        blend: int | None = None,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
         match_clips: float = MATCH_CLIPS,
     ) -> Request:
-        """The labels and windows of a sample or transfer, or a WalkdiffError naming what is wrong. Example
-        clips give their code, and their statistics matched at `match_clips` times their share of the
-        weight (a --style label weighs 1)."""
-        check_match_clips(match_clips)
-        if style is None and not style_clips:
+        """What `sample` or `transfer` will make, checked against the model before any work, or a
+        WalkdiffError naming what is wrong. Example clips give their code, and their statistics matched at
+        `match_clips` times their share of the weight (a `style` label weighs 1)."""
+        spec = Style.of(style, style_clips, match_clips, transition)
+        sampling = Sampling.of(sampler, steps, eta, guidance)
+        check_match_clips(spec.match)
+        if spec.labels is None and not spec.clips:
             raise WalkdiffError("no style given: pass --style NAME[,...], --style-clip FILE[,...] or both")
         content_id = self.model.label_ids([content], "content")[0]
         overlap, blend = resolve_windows(self.model.spec["window"], overlap, blend)
-        examples: tuple[StyleExample, ...] = ()
-        timeline = None if style is None else parse_timeline(self.model, style, transition)
+        rig = TargetRig.of(to, to_map)
+        timeline = None if spec.labels is None else parse_timeline(self.model, spec.labels, spec.transition)
         if timeline is not None:
-            if style_clips:
+            if spec.clips:
                 raise WalkdiffError(
                     "--style-clip: not in a timeline; give the timeline's keys as --style names"
                 )
             for weights in timeline.weights:
                 self.check_trained(weights)
             return Request(
-                timeline.at(0.0), timeline.label, content_id, sampling, overlap, blend, (), timeline
-            )
-        if style is not None:
-            style_label, label = parse_style(self.model, style)
+                spec, timeline.at(0.0), timeline.label, content, content_id, sampling, overlap, blend, rig,
+                (), timeline,
+            )  # fmt: skip
+        if spec.labels is not None:
+            style_label, label = parse_style(self.model, spec.labels)
             self.check_trained(style_label)
-        if style_clips:
+        examples: tuple[StyleExample, ...] = ()
+        if spec.clips:
             self.model.style_code(None)  # a model without a style encoder says so before any clip is read
-            weighted, statistics, examples = self.examples(style_clips)
+            weighted, statistics, examples = self.examples(spec.clips)
             clips_weight = sum(w for _, w in weighted)
-            if style is not None:
+            if spec.labels is not None:
                 weighted.insert(0, (label_code(self.model, style_label), 1.0))
             style_label = mixed_code(weighted)
-            if match_clips > 0:
+            if spec.match > 0:
                 share = clips_weight / sum(w for _, w in weighted)
-                sampling = replace(sampling, match=StyleStatistics.mixed(statistics, match_clips * share))
-            names = [e.source for e in examples]
-            label = "+".join(([label] if style is not None else []) + [f"clip-{Path(n).stem}" for n in names])
-        return Request(style_label, label, content_id, sampling, overlap, blend, examples)
+                sampling = replace(sampling, match=StyleStatistics.mixed(statistics, spec.match * share))
+            names = [f"clip-{Path(e.source).stem}" for e in examples]
+            label = "+".join(([label] if spec.labels is not None else []) + names)
+        return Request(spec, style_label, label, content, content_id, sampling, overlap, blend, rig, examples)
+
+    def make(
+        self, request: Request, num: int, frames: int, seed: int = 0, ground: bool = True, fix_feet=None
+    ) -> Generated:
+        """`sample`'s work on a checked request: the takes and the settings a manifest records."""
+        started = time.perf_counter()
+        clips = self.generate(request, num, frames, seed, ground, fix_feet)
+        generated = time.perf_counter() - started
+        settings = {
+            **request.record(),
+            "timeline": None if request.timeline is None else request.timeline.record(),
+            "content": request.content_name,
+            "num": num,
+            "frames": frames,
+            "fps": self.fps,
+            **request.sampling.record(),
+            "overlap": request.overlap,
+            "blend": request.blend,
+            "ground": ground,
+            "fix_feet": request.pins_feet(fix_feet),
+            "distilled_jumps": self.model.jumps(
+                request.sampling.name, request.sampling.steps, request.sampling.eta
+            ) is not None,
+        }  # fmt: skip
+        settings = {key: settings[key] for key in SAMPLE_SETTINGS}
+        takes = [self.take(clip, request.rig) for clip in clips]
+        timing = {
+            "generate_s": round(generated, 3),
+            "generated_frames_per_s": round(num * frames / generated, 1),
+        }
+        return Generated(
+            takes,
+            settings,
+            timing,
+            seed=seed,
+            rig=request.rig,
+            label=request.label,
+            extra={"timeline": request.timeline},
+        )
+
+    def restyle(
+        self,
+        request: Request,
+        motion: Motion | Take | str | os.PathLike,
+        strength: float = 0.6,
+        keep_trajectory: bool = False,
+        seed: int = 0,
+        ground: bool = True,
+        fix_feet=None,
+    ) -> Generated:
+        """`transfer`'s work on a checked request: the restyled take, the source on the same rig
+        (`extra["source"]`), how far the root path moved, and a warning for a clip shorter than a window."""
+        if request.timeline is not None:
+            raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is for sample; transfer takes one style")
+        noised_steps(self.model, strength, request.sampling)  # a bad strength fails before any warning
+        source = self.source(motion)
+        short = self.window_note(source, motion if isinstance(motion, str | os.PathLike) else "the clip")
+        started = time.perf_counter()
+        result = self.restyled(request, source, strength, keep_trajectory, seed, ground, fix_feet)
+        elapsed = time.perf_counter() - started
+        settings = {
+            **request.record(),
+            "content": request.content_name,
+            "strength": strength,
+            "keep_trajectory": keep_trajectory,
+            "frames": source.num_frames,
+            "fps": self.fps,
+            **request.sampling.record(),
+            "overlap": request.overlap,
+            "blend": request.blend,
+            "ground": ground,
+            "fix_feet": request.pins_feet(fix_feet),
+        }
+        source_take, moved = self.take(source, request.rig), root_path_error(source, result)
+        extra = {"source": source_take, "root_path_error": moved}
+        return Generated(
+            [self.take(result, request.rig)], settings, {"restyle_s": round(elapsed, 3)},
+            [] if short is None else [short], seed=seed, rig=request.rig, label=request.label, extra=extra,
+        )  # fmt: skip
 
     def examples(self, style_clips) -> tuple[list, list, tuple[StyleExample, ...]]:
         """Each example clip's (code, weight) and (statistics, weight), and what the manifest records."""
         weighted, statistics, examples = [], [], []
         for clip, weight in parse_style_clips(style_clips):
-            where = str(clip) if isinstance(clip, str | os.PathLike) else "the example clip"
+            where = clip_name(clip)
             windows = example_windows(self.model, self.source(clip, "--style-clip"), where)
             code = self.model.style_code(windows)
             weighted.append((code, weight))
