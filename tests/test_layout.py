@@ -24,7 +24,7 @@ ARROWS = {
     "preview": ("common", "motion"),
     "styled": ("common", "motion", "diffusion", "models", "data", "preview"),
     "autoregressive": ("common", "motion", "diffusion", "metrics", "models", "data", "preview"),
-    "evaluation": ("common", "motion", "metrics", "models", "data"),
+    "evaluation": ("common", "motion", "diffusion", "metrics", "models", "data"),
     "callbacks": ("common", "motion", "preview", "styled", "autoregressive", "evaluation"),
     "api": ("common", "autoregressive", "styled"),
     "bench": (
