@@ -522,7 +522,7 @@ model:
     beta_start: 1.0e-3
     beta_end: 0.2
     prediction: x0
-    min_snr_gamma: 5.0   # FMD 1.65x the floor against 2.20x unweighted (walkdiff bench ablate: docs/training.md)
+    min_snr_gamma: 5.0   # FMD 1.65x the floor, not 2.20x (walkdiff bench ablate: docs/training.md)
     lambda_contact: 1.0
     lambda_root: 0.023
     lambda_adv: 0.05
