@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -456,8 +457,11 @@ class WavDecoder:
 
 
 def emit(line: dict) -> None:
-    """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made."""
-    print(json.dumps(line, separators=(",", ":")), flush=True)
+    """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made. One write of the
+    line and its newline: Ctrl-C between print's two writes left a line without its end, and the
+    interrupted stream's summary then joined it."""
+    sys.stdout.write(json.dumps(line, separators=(",", ":")) + "\n")
+    sys.stdout.flush()
 
 
 class Interrupted(KeyboardInterrupt):

@@ -168,7 +168,7 @@ def evaluate(
         "per_content": rows.per_content_summary(spec.contents),
         f"fmd_{split}_halves": summarize(halves, NON_NEGATIVE),
         "elapsed_s": round(time.perf_counter() - started, 1),
-        "estimated_generation_s": None if plan is None else round(plan.estimate_s, 1),
+        "estimated_generation_s": None if plan is None else round(plan.estimate_s, 3),
     }
     write_reports(report, Path(out))
     if mlflow_experiment:
