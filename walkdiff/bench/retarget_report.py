@@ -16,8 +16,8 @@ def checks(result: dict) -> dict:
             for key, value in node.items():
                 walk(value, [*path, key])
 
-    for section in ("same_proportions", "other_proportions", "real_pairs", "speed"):
-        walk(result[section], [section])
+    for section in ("same_proportions", "other_proportions", "real_pairs", "circling", "speed"):
+        walk(result.get(section, {}), [section])
     return {
         "checked": len(found),
         "passed": sum(ok for _, ok in found),
@@ -69,7 +69,8 @@ def summary(result: dict) -> list[str]:
         f"{'h+f':>5s} {'path':>7s} "
         f"{'skate (src)':>14s} {'contacts own/sc':>16s} {'below':>7s} {'sides':>5s}"
     )
-    for name, f in [*result["other_proportions"].items(), *result["real_pairs"].items()]:
+    pairs = [*result["other_proportions"].items(), *result["real_pairs"].items()]
+    for name, f in [*pairs, *result.get("circling", {}).items()]:
         if "bones_median_deg" in f:
             lines.append(_pair_row(name, f))
     trip = result["real_pairs"].get("xia -> zeggs -> xia")
