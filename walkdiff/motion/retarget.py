@@ -59,6 +59,7 @@ from walkdiff.motion.skeleton import Motion, Skeleton
 
 FEET_MODES = ("follow", "pin", "off")
 BLEND_SECONDS = 0.05  # a pinned foot's correction fades in and out over this long around its contact
+AIR_BAND = (1.0, 2.0)  # a foot's goal goes from the ground path to the free leg between these heights
 DROP_SECONDS = 0.15  # the body lowered where a leg cannot reach eases in and out over this long
 
 
@@ -162,6 +163,8 @@ class Retargeter:
         self.local_rotations[0] = tgt.turn @ self.local_rotations[0]
         self.local_positions[0] = tgt.turn @ self.local_positions[0]
         self.pelvis = (src.index("pelvis"), tgt.index("pelvis"))
+        self.source_hips = [src.index(f"{side}_thigh") for side in SIDES]
+        self.target_hips = [tgt.index(f"{side}_thigh") for side in SIDES]
         self.carrier = _carrier(skeleton, tgt.index("pelvis"))
         feet = [(f"{s}_foot", f"{s}_toe") for s in SIDES]
         self.source_feet = [_contact_joint(src, role) for pair in feet for role in pair]
@@ -214,6 +217,7 @@ class Retargeter:
         world = self._driven_rotations(positions, rotations)
         local_rot, local_pos, world_rot = self._locals(world, motion.num_frames)
         self._place_pelvis(local_pos, world_rot, self.leg_ratio * positions[:, self.pelvis[0]])
+        self._lift_hips(local_pos, world_rot, self.leg_ratio * positions[:, self.source_hips, 1].mean(axis=1))
         source_feet = positions[:, self.source_feet]
         low, slow = contact_state(source_feet, motion.fps, self.contact_spec)
         contacts = (low & slow).astype(np.float64)
@@ -262,6 +266,12 @@ class Retargeter:
             if kept.size:
                 world_rot[:, kept] = world_rot[:, parents[kept]] @ local_rot[:, kept]
         return local_rot, local_pos, world_rot
+
+    def _lift_hips(self, local_pos: np.ndarray, world_rot: np.ndarray, height: np.ndarray) -> None:
+        """Move the body vertically so that the middle of the thighs is at `height` (F,), up to one
+        shift for the clip (set later by the feet)."""
+        now = _positions_of(self.target_skeleton, local_pos, world_rot, self.target_hips).mean(axis=1)[:, 1]
+        self._shift(local_pos, world_rot, height - now - np.median(height - now))
 
     def _place_pelvis(self, local_pos: np.ndarray, world_rot: np.ndarray, place: np.ndarray) -> None:
         """Set the carrier's translation so that the pelvis lands on `place` (F, 3) (joints between
@@ -370,8 +380,25 @@ def follow_goals(
     goal = by_heel + weight[:, None] * (by_toe - by_heel)
     goal[:, 1] = by_heel[:, 1]
     offset = (heel - goal)[:, [0, 2]]  # the free foot against the source's path
-    goal[:, [0, 2]] += _held_over_runs(offset, (contacts > 0.5).any(axis=1))
-    return goal
+    planted = (contacts > 0.5).any(axis=1)
+    goal[:, [0, 2]] += _held_over_runs(offset, planted)
+    if not planted.any() or planted.all():
+        return goal
+    # High in the air the leg is free: the free ankle, moved by the correction the planted frames
+    # needed, carried linearly between them; the ground path back below AIR_BAND contact heights.
+    frames = np.arange(len(goal))
+    fix = goal - heel
+    carried = np.stack([np.interp(frames, frames[planted], fix[planted, i]) for i in range(3)], axis=1)
+    free = heel + carried
+    floor = np.percentile(source[..., 1], 5, axis=0) + lift[:, 1]
+    sole = (toe - heel)[:, 1]
+    low = np.minimum(
+        np.minimum(goal[:, 1] - floor[0], goal[:, 1] + sole - floor[1]),
+        np.minimum(free[:, 1] - floor[0], free[:, 1] + sole - floor[1]),
+    )
+    air = np.clip((low / band - AIR_BAND[0]) / (AIR_BAND[1] - AIR_BAND[0]), 0.0, 1.0)
+    air[planted] = 0.0
+    return goal + air[:, None] * (free - goal)
 
 
 def _held_over_runs(values: np.ndarray, planted: np.ndarray) -> np.ndarray:
