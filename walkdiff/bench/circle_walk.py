@@ -20,6 +20,19 @@ from walkdiff.motion.rest_alignment import forward_kinematics_np
 from walkdiff.motion.skeleton import Motion
 
 
+WALKING_SPEED_M_S = 0.5  # a clip whose body goes on average this fast over the ground walks (or runs)
+
+
+def travels(motion: Motion) -> bool:
+    """Whether the clip's body goes somewhere: its root's horizontal path at WALKING_SPEED_M_S or more
+    on average (a walk or a run, not a punch or a jump on the spot)."""
+    profile = SkeletonProfile.detect(motion)
+    points = forward_kinematics_np(motion.rotations, motion.positions, motion.skeleton.parents)[0]
+    root = (points[:, profile.root_index] @ profile.turn.T)[:, [0, 2]]
+    path = np.linalg.norm(np.diff(root, axis=0), axis=1).sum() * profile.metres_per_unit
+    return path / max(motion.num_frames - 1, 1) * motion.fps >= WALKING_SPEED_M_S
+
+
 def _yaw(angle: np.ndarray) -> np.ndarray:
     """(F, 3, 3) turns by `angle` (F,) about +Y (canonical up)."""
     c, s = np.cos(angle), np.sin(angle)

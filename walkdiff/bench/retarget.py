@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.bench.circle_walk import circled
+from walkdiff.bench.circle_walk import circled, travels
 from walkdiff.bench.measure import machine, median_seconds
 from walkdiff.bench.retarget_report import checks, summary
 from walkdiff.bench.rig_variants import (
@@ -431,22 +431,21 @@ def _pair(source: Motion, target, pools: dict, name: str) -> Motion:
 
 CIRCLE_RADIUS_M = 2.0
 BIG_HEIGHT_M, BIG_HIPS, BIG_FPS = 2.0, 1.4, 60.0
-BIG = f"mixamo {BIG_HEIGHT_M:g} m, hips {BIG_HIPS:g}x"
+BIG = f"big = mixamo {BIG_HEIGHT_M:g} m, hips {BIG_HIPS:g}x, at {BIG_FPS:g} fps as a source"
 
 
 def _run_circling(clip: Motion, window: Motion | None, sign: float, pools: dict) -> None:
     """The clip walking round a circle (`circle_walk.circled`), onto a big character of another
-    hip-width-to-leg ratio (the built-in mixamo rig, 2 m tall, its hips wider) and onto ZEGGS; and that
-    character's clip, at 60 fps, as the source: onto Xia and ZEGGS (issue 46's 2 m Mixamo walking in a
-    circle bent Xia's thighs 9.7 deg away from its own)."""
+    hip-width-to-leg ratio (BIG: the built-in mixamo rig, 2 m tall, its hips wider) and onto ZEGGS;
+    and the big character's clip, at 60 fps, as the source: onto Xia and ZEGGS (issue 46's 2 m Mixamo
+    walking in a circle bent Xia's thighs 9.7 deg away from its own)."""
     circle = circled(clip, CIRCLE_RADIUS_M, sign)
     big = hips(rig("mixamo", BIG_HEIGHT_M).skeleton, BIG_HIPS)
-    on_big = _pair(circle, big, pools, f"xia circling -> {BIG}")
-    foreign = resample(on_big, BIG_FPS)
-    _pair(foreign, clip.slice(0, 1), pools, f"{BIG} circling, {BIG_FPS:g} fps -> xia")
+    foreign = resample(_pair(circle, big, pools, "xia -> big"), BIG_FPS)
+    _pair(foreign, clip.slice(0, 1), pools, "big -> xia")
     if window is not None:
-        _pair(circle, window.slice(0, 1), pools, "xia circling -> zeggs")
-        _pair(foreign, window.slice(0, 1), pools, f"{BIG} circling, {BIG_FPS:g} fps -> zeggs")
+        _pair(circle, window.slice(0, 1), pools, "xia -> zeggs")
+        _pair(foreign, window.slice(0, 1), pools, "big -> zeggs")
 
 
 def _run_real(clip: Motion, window: Motion | None, height: float, pools: dict, trips: list) -> None:
@@ -534,14 +533,16 @@ def bench_retarget(
     windows = zeggs_windows(zeggs[1], len(clips), frames) if zeggs else [None] * len(clips)
     first = next(iter(clips.values()))
     speed = _speed(first, zeggs and zeggs[1], repeats)  # first: the machine is at its quietest
-    same, other, real, circling, trips, heights = {}, {}, {}, {}, [], {}
+    same, other, real, circling, trips, heights, circling_clips = {}, {}, {}, {}, [], {}, []
     with tempfile.TemporaryDirectory() as folder:
         for seed, (name, clip) in enumerate(progress(clips.items(), desc="retarget clips", unit="clip")):
             height = heights[name] = SkeletonProfile.detect(clip).body_height
             _run_same(clip, seed, height, same, Path(folder))
             _run_other(clip, other)
             _run_real(clip, windows[seed], height, real, trips)
-            _run_circling(clip, windows[seed], 1.0 if seed % 2 == 0 else -1.0, circling)
+            if travels(clip):  # walks and runs go round a circle, one way then the other
+                _run_circling(clip, windows[seed], (-1.0) ** len(circling_clips), circling)
+                circling_clips.append(name)
     real_figures = {name: pool.figures() for name, pool in real.items()}
     if trips:
         trip = np.concatenate(trips, axis=None)
@@ -568,6 +569,13 @@ def bench_retarget(
         "other_proportions": {name: pool.figures() for name, pool in other.items()},
         "real_pairs": real_figures,
         "circling": {name: pool.figures() for name, pool in circling.items()},
+        "circling_clips": {
+            "clips": circling_clips,
+            "radius_m": CIRCLE_RADIUS_M,
+            "big": BIG,
+            "note": "the clips that travel (walks and runs: circle_walk.travels), each walked round a "
+            "circle of this radius, turning left and right in turn (circle_walk.circled)",
+        },
         "speed": {"clip": next(iter(clips)), "frames": first.num_frames, **speed},
         "machine": machine(),
     }
