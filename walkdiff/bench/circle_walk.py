@@ -19,7 +19,6 @@ from walkdiff.motion.representation import contact_state
 from walkdiff.motion.rest_alignment import forward_kinematics_np
 from walkdiff.motion.skeleton import Motion
 
-
 WALKING_SPEED_M_S = 0.5  # a clip whose body goes on average this fast over the ground walks (or runs)
 
 
@@ -62,7 +61,7 @@ def circled(motion: Motion, radius_m: float, sign: float = 1.0) -> Motion:
     radius = radius_m / profile.metres_per_unit
     angle = np.cumsum(walked) / radius * np.sign(sign)
     yaw = _yaw(angle)
-    # x' = yaw_t x + shift_t; a pivot held from t-1 to t stays put: shift_t - shift_t-1 = -(yaw_t - yaw_t-1) q_t.
+    # x' = yaw_t x + shift_t; the pivot q_t stays put: shift_t - shift_t-1 = -(yaw_t - yaw_t-1) q_t.
     steps = np.einsum("fij,fj->fi", yaw[1:] - yaw[:-1], pivot[1:])
     shift = np.concatenate([np.zeros((1, 3)), -np.cumsum(steps, axis=0)])
     in_file = turn.T @ yaw @ turn  # the same turns in the file's axes

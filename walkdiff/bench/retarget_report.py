@@ -66,8 +66,8 @@ def summary(result: dict) -> list[str]:
         pos, back = _show(f["position_error_max"], "{:.1e}"), _show(f["round_trip_max"], "{:.1e}")
         lines.append(f"  {name:56s} {pos:>13s} {back:>12s}")
     lines.append(
-        f"{'pair (degrees: median/p95)':26s} {'bones':>10s} {'worst bone':>11s} {'legs off':>10s} {'leg IK':>6s} "
-        f"{'h+f':>5s} {'path':>7s} "
+        f"{'pair (degrees: median/p95)':26s} {'bones':>10s} {'worst bone':>11s} {'legs off':>10s} "
+        f"{'leg IK':>6s} {'h+f':>5s} {'path':>7s} "
         f"{'skate (src)':>14s} {'contacts own/sc':>16s} {'below':>7s} {'sides':>5s}"
     )
     for name, f in [*result["other_proportions"].items(), *result["real_pairs"].items()]:
@@ -76,8 +76,8 @@ def summary(result: dict) -> list[str]:
     circling = result.get("circling_clips")
     if circling:
         lines.append(
-            f"circling round {circling['radius_m']:g} m: {', '.join(circling['clips']) or 'no clip travels'}; "
-            f"{circling['big']}"
+            f"circling round {circling['radius_m']:g} m: "
+            f"{', '.join(circling['clips']) or 'no clip travels'}; {circling['big']}"
         )
     for name, f in result.get("circling", {}).items():
         lines.append(_pair_row(name, f))
