@@ -1,6 +1,6 @@
 """`walkdiff bench retarget`: retargeting measured against the numbers of issue 29.
 
-Three kinds of pairs, each over the same real clips (Xia clips of different styles and contents):
+Four kinds of pairs, each over the same real clips (Xia clips of different styles and contents):
 
 - same proportions (`walkdiff.bench.rig_variants`): the clip's own rig with another rest pose, random
   local frames, another rotation order, up axis and units. The answer is known: world joint positions
@@ -11,6 +11,13 @@ Three kinds of pairs, each over the same real clips (Xia clips of different styl
   feet turned within 10 deg, the root's path the source's times the leg ratio within 1%, feet planted.
 - real pairs: Xia onto ZEGGS (its first frame as the reference) and back, ZEGGS onto Xia, Xia onto each
   built-in rig.
+- circling (issue 46): the clips that travel (walks and runs) walked round a 2 m circle
+  (`walkdiff.bench.circle_walk`), onto a big character of another hip-width-to-leg ratio (the built-in
+  mixamo rig 2 m tall, hips 1.4x) and onto ZEGGS; and the big character's clip at 60 fps as the source,
+  onto Xia and ZEGGS.
+
+Every pair's legs with the foot IK on: the worst leg bone within 3 deg of the source's at its median
+(issue 46: the feet may bend a leg away only as far as a contact needs).
 
 Bone directions are read pooled over the bones (as tests/test_retarget.py does) and per bone (the worst
 bone's own median and p95). Feet on every pair: the project's skate ratio as its evaluator measures it

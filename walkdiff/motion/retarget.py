@@ -9,23 +9,28 @@ the translation of the joint that carries its root motion change. Per clip (`Ret
    joints (`walkdiff.motion.rest_alignment`). Joints on no chain (a static root, twist and IK helpers,
    fingers only the target has) keep their reference pose; `RetargetResult.rest_joints` names them.
    Left and right are never swapped: roles carry their side from the maps.
-2. proportions: the pelvis goes where the source's does, times the legs' length ratio (target over
-   source, each in its own units: units convert with it); the up axes convert through each rig's
-   profile (canonical Y up). A vertical shift then puts the target's planted feet at the source's
-   planted heights (times the ratio): the rigs' hips may sit higher or lower above their thighs.
+2. proportions: the pelvis goes where the source's does along the ground, times the legs' length ratio
+   (target over source, each in its own units: units convert with it); the up axes convert through
+   each rig's profile (canonical Y up). Up and down, the middle of the thighs rises and falls as the
+   source's does (times the ratio): rigs put their pelvis joint at other places over the hips, and a
+   nearly straight leg bends far for a little height. A vertical shift then puts the target's planted
+   feet at the source's planted heights (times the ratio).
 3. feet: contacts are measured on the source with its profile's thresholds. With `feet="follow"`
    (default) each foot walks the source's foot path, scaled, by the foot clean-up's two-bone IK
-   (`walkdiff.motion.footfix.bend_leg`) on every frame: the ankle goes as high as the source's
-   (each joint at its own height above the floor), and along the ground the foot is anchored on
-   whichever of heel and toe is lower, so the joint on the ground goes where the source's goes whatever
-   the feet's lengths (`follow_goals`); the rig's own stance width is kept, changing only while a foot
-   is in the air. It adds no sliding of its own (the skate ratio with each rig's own profile stays the
-   source's), and a target of the same proportions reproduces the source exactly. Where a leg could not
-   reach a planted goal (a target whose hips sit higher over its feet, pushing off), the body is
-   lowered as much as that needs. `"pin"` also holds every planted foot still on its contact, the
-   clean-up's own rule: it removes the source's sliding too (on Xia, half the mean slide speed) but
-   jumps a little where heel and toe contacts change. `"off"` leaves the legs as the rotations put
-   them.
+   (`walkdiff.motion.footfix.bend_leg`) on every frame (`follow_goals`): the ankle goes as high as
+   the source's (each joint at its own height above the floor), and along the ground the foot is
+   anchored on whichever of heel and toe is lower, so the joint on the ground goes where the source's
+   goes whatever the feet's lengths. Where on the ground is the target's own: the path is moved by how
+   far the target's foot stands from it with its legs as the source's rotations put them (its hip
+   width, thigh-to-shin proportions, ankle height), held over each contact, so a leg bends away from
+   the source's direction only by how much that changes while its foot is down; high in the air the
+   leg is free. It adds no sliding of its own (the skate ratio with each rig's own profile stays the
+   source's), and a target of the same proportions reproduces the source exactly. Where a leg could
+   not reach a planted goal (a target whose hips sit higher over its feet, pushing off), the body is
+   lowered as much as that needs around those frames. `"pin"` also holds every planted foot still on
+   its contact, the clean-up's own rule: it removes the source's sliding too (on Xia, half the mean
+   slide speed) but jumps a little where heel and toe contacts change. `"off"` leaves the legs as the
+   rotations put them.
 
 A `Retargeter` does the per-rig work once (profiles, maps, reference poses, per-joint constants) and
 then converts any clip of the source skeleton; `retarget` is the one-call form.
