@@ -372,7 +372,9 @@ def follow_goals(
     its ankle height. Each joint keeps its own height above the floor; along the ground the path moves
     by how far the free foot is from the source's (scaled), held at its mean over each contact run
     (`contacts` (F, 2)), so a planted foot moves only as the source's does and its leg bends away from
-    the source's directions only by how that offset changes during the contact."""
+    the source's directions only by how that offset changes during the contact. Above AIR_BAND times
+    `band` (the contact height) the goal is the free ankle, moved only by the correction the planted
+    frames on either side needed: the leg swings as the source's does."""
     lift = np.zeros((2, 3))
     for k, joint in enumerate((heel, toe)):
         planted = contacts[:, k] > 0.5
