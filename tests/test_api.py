@@ -13,7 +13,6 @@ import numpy as np
 import pygltflib
 import pytest
 import synthetic
-import tiny
 import torch
 
 import walkdiff
@@ -31,23 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 FAST = dict(sampler="ddim", steps=2)  # the machinery is the same for every sampler
 
 
-@pytest.fixture(scope="module")
-def styled(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("styled")
-    synthetic.xia_like_folder(root, walk_clips=6, frames=240)
-    return tiny.generator(root, epochs=5)
-
-
-@pytest.fixture(scope="module")
-def walker(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("walker")
-    synthetic.xia_like_folder(root, walk_clips=8, frames=240)
-    return tiny.walker(root)[1]
-
-
-@pytest.fixture(scope="module")
-def gestures(tmp_path_factory) -> tuple[Path, Path]:
-    return tiny.gestures(tmp_path_factory.mktemp("gestures"))
+# The tiny `styled`, `walker` and `gestures` checkpoints are conftest.py's (tests/test_same_outputs.py
+# runs the commands on them too).
 
 
 def test_import_walkdiff_alone_imports_no_torch():
