@@ -206,7 +206,7 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
     ckpt, takes = gestures
     model = walkdiff.load(ckpt)
     assert isinstance(model, GestureGenerator) and model.fps == 20.0
-    clips = model.gesture(takes / "b.wav", seed=4, samples=2)
+    clips = model.gesture(takes / "b.wav", seed=4, num=2, smooth=True)
     assert len(clips) == 2 and not list(empty_folder.iterdir()), "nothing written unasked"
     for clip in clips:
         assert clip.num_frames == 161 and clip.fps == pytest.approx(20.0)  # 8 s at 20 fps, both ends
@@ -214,9 +214,9 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
     samples, rate = read_wav(takes / "b.wav")
     stereo = np.stack([samples, samples], axis=1)
     for given in (samples, stereo):
-        again = model.gesture(given, seed=4, samples=2, rate=rate)
+        again = model.gesture(given, seed=4, num=2, smooth=True, rate=rate)
         np.testing.assert_allclose(again[1].positions, clips[1].positions, atol=1e-5)
-    report = gesture(str(ckpt), str(takes / "b.wav"), str(tmp_path / "out"), seed=4, smooth=True, streams=2,
+    report = gesture(str(ckpt), str(takes / "b.wav"), str(tmp_path / "out"), seed=4, smooth=True, num=2,
                      preview_seconds=1.0)  # fmt: skip
     for clip, written in zip(clips, report["files"][:2], strict=True):
         assert clip.to_bvh(tmp_path / Path(written).name).read_text() == Path(written).read_text()
@@ -224,8 +224,11 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
         model.gesture(takes / "b.wav", rate=16000)
     with pytest.raises(walkdiff.WalkdiffError, match="need their rate in whole Hz > 0, got None"):
         model.gesture(samples)
-    with pytest.raises(walkdiff.WalkdiffError, match="samples must be >= 1, got 0"):
-        model.gesture(samples, rate=rate, samples=0)
+    with pytest.raises(walkdiff.WalkdiffError, match="num must be a whole number >= 1, got 0"):
+        model.gesture(samples, rate=rate, num=0)
+    with pytest.warns(DeprecationWarning, match="samples= is deprecated; use num="):
+        old = model.gesture(samples, rate=rate, samples=2, seed=4, smooth=True)
+    np.testing.assert_allclose(old[1].positions, clips[1].positions, atol=1e-5)
 
 
 def test_a_model_without_arms_cannot_be_retargeted_is_refused(styled, gestures, tmp_path, capsys):

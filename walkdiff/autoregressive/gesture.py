@@ -23,8 +23,10 @@ import inspect
 import itertools
 import math
 import os
-import sys
 import time
+import warnings
+from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -96,51 +98,93 @@ def joint_positions(model, features: np.ndarray) -> np.ndarray:
     return motion_world_positions(to_motion(model, features))[:, joints]
 
 
+@dataclass(frozen=True)
+class GestureRequest:
+    """What to make, checked before any audio is read: how many clips, from which seed, smoothed or not,
+    by which sampler, on which rig."""
+
+    num: int
+    seed: int
+    smooth: bool
+    sampler: SamplerChoice
+    rig: TargetRig | None
+
+    def names(self, out: Path, stem: str) -> tuple[list[str], list[Path]]:
+        """Each clip's title and BVH file (`write_takes` names them the same), for `gesture` and its
+        stream."""
+        titles = [f"seed{self.seed}" if self.num == 1 else f"seed{self.seed}_{k}" for k in range(self.num)]
+        return titles, [out / (f"{stem}.bvh" if self.num == 1 else f"{stem}_{t}.bvh") for t in titles]
+
+
 class GestureGenerator(Pipeline):
     """A trained DiffMotion: `gesture` makes gestures for speech and returns them as `Take`s on the
-    training files' skeleton, writing nothing; `walkdiff gesture` writes the same clips for the same seed."""
+    training files' skeleton, writing nothing; `stream` makes them as the speech arrives; `walkdiff
+    gesture` (with --stream) writes the same clips for the same seed."""
 
     @classmethod
     def load(cls, ckpt: str | Path, device: str = "cpu") -> GestureGenerator:
         return cls(load_model(ckpt, device))
 
     @python_api
-    def gesture(
+    def request(
         self,
-        audio: str | os.PathLike | np.ndarray,
+        num: int = 1,
         seed: int = 0,
-        samples: int = 1,
-        smooth: bool = True,
+        smooth: bool = False,
         sampler: str | SamplerChoice | dict = "ddpm",
         steps: int | None = None,
         eta: float = 0.0,
-        rate: int | None = None,
         to: TargetRig | str | os.PathLike | None = None,
         to_map=None,
-    ) -> Generated:
-        """`samples` gesture clips, one frame per 1/fps of the speech: a WAV file, or samples (N,) or
-        (N, channels) at `rate` Hz. `smooth`: DiffMotion's Savitzky-Golay filter (the command's --smooth).
-        `to` (+ `to_map`): a rig to play them on (`Take.retarget`). The result reads as the list of its
-        takes; its `settings` are what `walkdiff gesture` prints."""
+        samples: int | None = None,
+    ) -> GestureRequest:
+        """`num` clips from `seed`; `smooth`: DiffMotion's Savitzky-Golay filter (the command's --smooth);
+        the sampler (a name with `steps` and `eta`, or a SamplerChoice); `to` (+ `to_map`): a rig to play
+        them on (`Take.retarget`). `samples`: `num`'s old name (deprecated)."""
+        if samples is not None:
+            warnings.warn("gesture: samples= is deprecated; use num=", DeprecationWarning, stacklevel=3)
+            num = samples
         choice = SamplerChoice.of(sampler, steps, eta).unguided()
         rig = TargetRig.of(to, to_map)
-        if samples < 1:
-            raise WalkdiffError(f"samples must be >= 1, got {samples}")
-        sound, rate = self.listen(audio, rate, samples)
+        if isinstance(num, bool) or not isinstance(num, int) or num < 1:
+            raise WalkdiffError(f"--num must be a whole number >= 1, got {num!r}")
+        return GestureRequest(num, seed, bool(smooth), choice, rig)
+
+    @python_api
+    def gesture(
+        self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, **options
+    ) -> Generated:
+        """Gesture clips, one frame per 1/fps of the speech: a WAV file, or samples (N,) or (N,
+        channels) at `rate` Hz. `options`: what `request` takes (num, seed, smooth, sampler, steps, eta,
+        to, to_map). The result reads as the list of its takes; its `settings` are what `walkdiff
+        gesture` prints."""
+        return self.make(self.request(**options), audio, rate)
+
+    def make(self, request: GestureRequest, audio, rate: int | None = None) -> Generated:
+        """`gesture`'s work on a checked request."""
+        sound, rate = self.listen(audio, rate, request.num)
         mel = log_mel(sound, rate, self.fps, self.model.spec["audio_dim"])
         started = time.perf_counter()
-        clips = synthesize(self.model, mel, samples, seed, smooth, choice)
+        clips = synthesize(self.model, mel, request.num, request.seed, request.smooth, request.sampler)
         per_frame = (time.perf_counter() - started) / len(mel)
         settings = {
             "frames": len(mel),
             "seconds": len(mel) / self.fps,
-            "streams": samples,
-            "sampler": choice.label(self.model.diffusion),
+            "streams": request.num,
+            "sampler": request.sampler.label(self.model.diffusion),
             "seconds_per_frame": per_frame,
         }
-        takes = [self.take(to_motion(self.model, clip), rig) for clip in clips]
+        takes = [self.take(to_motion(self.model, clip), request.rig) for clip in clips]
         timing = {"seconds_per_frame": per_frame}
-        return Generated(takes, settings, timing, seed=seed, rig=rig, extra={"audio": (sound, rate)})
+        extra = {"audio": (sound, rate)}
+        return Generated(takes, settings, timing, seed=request.seed, rig=request.rig, extra=extra)
+
+    @python_api
+    def stream(self, rate: int | None = None, **options) -> SpeechStreams:
+        """Gestures as the speech arrives (`SpeechStreams`: feed it mono samples at `rate` Hz, default
+        the model's training audio's): `options` as `request`'s, no rig (the live poses are on the
+        model's skeleton)."""
+        return SpeechStreams(self, self.request(**options), rate)
 
     def listen(
         self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1
@@ -168,6 +212,78 @@ def mono_samples(audio: np.ndarray, rate: int | None) -> np.ndarray:
     if not np.isfinite(sound).all():
         raise WalkdiffError("audio: samples that are not finite numbers; expected audio in [-1, 1]")
     return sound
+
+
+class SpeechStreams:
+    """`GestureGenerator.stream`'s: the request's `num` gesture streams of one speech whose samples arrive
+    over time. `feed` samples, `run` the frames they allow, `frames` hands those over (the poses as
+    rotations on the file's skeleton), `close` at the end of the speech; `takes` are the clips made,
+    smoothed as asked (the live frames never are: they could not wait for the filter's frames ahead)."""
+
+    def __init__(self, generator: GestureGenerator, request: GestureRequest, rate: int | None = None):
+        from walkdiff.autoregressive.streaming import GestureBatch, GestureStream
+
+        if request.rig is not None:
+            raise WalkdiffError(
+                "--to does not work with a stream (the live poses are on the model's skeleton); retarget "
+                "the clips it makes"
+            )
+        model, spec = generator.model, generator.model.spec
+        self.generator, self.model, self.request = generator, model, request
+        self.joints = list(spec["joints"])
+        self.batch = GestureBatch(model, request.seed, request.sampler)
+        self.streams = [GestureStream(model, rate, batch=self.batch) for _ in range(request.num)]
+        self.rate = self.streams[0].rate
+        self.poses: list[list[np.ndarray]] = [[] for _ in range(request.num)]
+
+    def header(self) -> dict:
+        spec = self.model.spec
+        return {
+            "fps": spec["fps"], "rate": self.rate, "streams": self.request.num, "joints": self.joints,
+            "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
+            "lookahead_s": round(self.streams[0].features.needed(spec["lookahead"]) / self.rate, 4),
+        }  # fmt: skip
+
+    def feed(self, samples: np.ndarray) -> None:
+        for stream in self.streams:
+            stream.feed(samples)
+
+    def run(self) -> None:
+        self.batch.run()
+
+    def close(self) -> None:
+        for stream in self.streams:
+            stream.close()
+
+    def frames(self) -> list[dict]:
+        """The frames made since the last call: stream, frame, time, the audio time it waited for and
+        the rotations (J, 4) of the modelled joints."""
+        lines, fps = [], self.model.spec["fps"]
+        for k, stream in enumerate(self.streams):
+            made = stream.take()
+            if not len(made):
+                continue
+            first = len(self.poses[k])
+            self.poses[k].extend(made)
+            quaternions = file_quaternions(self.model, made, self.joints).round(5)
+            for i, q in enumerate(quaternions):
+                t = first + i
+                lines.append({
+                    "stream": k, "frame": t, "time": round(t / fps, 4),
+                    "audio_time": round(stream.waited[t], 4), "rotations": q.tolist(),
+                })  # fmt: skip
+        return lines
+
+    def takes(self) -> list[Take]:
+        """The clips made, as long as the shortest (streams stopped by Ctrl-C within a batch's frame);
+        none when no frame was made."""
+        made = min(len(p) for p in self.poses)
+        if not made:
+            return []
+        clips = [np.stack(p[:made]) for p in self.poses]
+        if self.request.smooth:
+            clips = [savgol(c, SMOOTH_WINDOW, SMOOTH_ORDER, axis=0) for c in clips]
+        return [self.generator.take(to_motion(self.model, clip)) for clip in clips]
 
 
 def write_clips(
@@ -215,35 +331,25 @@ def write_takes(
     return files + [gif, gif.with_suffix(".mp4")], cap.describe(frames, fps, len(takes))
 
 
-def bvh_names(out: Path, stem: str, seed: int, streams: int) -> tuple[list[str], list[Path]]:
-    """Each stream's title and BVH file (`write_takes` names them the same), for `gesture` and its stream."""
-    titles = [f"seed{seed}" if streams == 1 else f"seed{seed}_{k}" for k in range(streams)]
-    return titles, [out / (f"{stem}.bvh" if streams == 1 else f"{stem}_{t}.bvh") for t in titles]
-
-
 @command
 def gesture(
     ckpt: str,
     audio: str,
     out: str,
-    seed: int = 0,
-    smooth: bool = False,
-    streams: int = 1,
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
-    **request,
+    **options,
 ) -> dict:
     """`walkdiff gesture`: `GestureGenerator.gesture`'s clips as BVH(s) and a GIF (of their first
-    `preview_seconds`) for a WAV file. `request`: sampler, steps, eta, to and to_map."""
-    request = specs_first(request)
-    if streams < 1:
-        raise WalkdiffError(f"--streams must be >= 1, got {streams}")
+    `preview_seconds`) for a WAV file. `options`: what `GestureGenerator.request` takes."""
+    options = specs_first(options)
     cap = PreviewCap(preview_seconds)
-    stem, out = Path(audio).stem, output_folder(out)
-    titles, targets = bvh_names(out, stem, seed, streams)
-    check_free([*targets, Path(out) / f"{stem}.gif", Path(out) / f"{stem}.mp4"], overwrite)
     generator = GestureGenerator.load(ckpt)
-    result = generator.gesture(audio, seed, streams, smooth, **request)
+    request = generator.request(**options)
+    stem, out = Path(audio).stem, output_folder(out)
+    titles, targets = request.names(out, stem)
+    check_free([*targets, Path(out) / f"{stem}.gif", Path(out) / f"{stem}.mp4"], overwrite)
+    result = generator.make(request, audio)
     with output_set(out):  # all or none: no BVH without the others and the preview
         speech = result.extra["audio"]
         files, preview = write_takes(Path(out), stem, result.takes, titles, generator.fps, cap, speech)
@@ -270,131 +376,69 @@ def gesture_stream(
     ckpt: str,
     audio: str,
     out: str,
-    seed: int = 0,
-    smooth: bool = False,
-    streams: int = 1,
     rate: int | None = None,
     idle: float = 2.0,
     seconds: float | None = None,
     overwrite: bool = False,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
+    **options,
 ) -> dict:
-    """`walkdiff gesture --stream`: poses as the audio arrives (raw s16le PCM on stdin, or a WAV that is
-    still being written), one JSON line per frame on stdout, the BVH(s) written at the end."""
-    from walkdiff.autoregressive.streaming import (
-        GestureBatch,
-        GestureStream,
-        PcmDecoder,
-        StreamEnd,
-        WavDecoder,
-        emit,
-        read_growing,
-        read_pipe,
-        stopped,
-    )
+    """`walkdiff gesture --stream`: `GestureGenerator.stream`'s poses as the audio arrives (raw s16le PCM
+    on stdin, or a WAV that is still being written), one JSON line per frame on stdout, the BVH(s)
+    written at the end. `options`: what `GestureGenerator.request` takes."""
+    from walkdiff.autoregressive.streaming import StreamEnd, emit, speech_input, stopped
 
-    if streams < 1:
-        raise WalkdiffError(f"--streams must be >= 1, got {streams}")
-    model = load_model(ckpt)
-    spec = model.spec
-    from_stdin = audio == "-"
-    if from_stdin:
-        rate = rate or spec.get("sample_rate")
-        if rate is None:
-            raise WalkdiffError(
-                "--rate: the checkpoint does not record the sample rate of its training audio; give the rate "
-                "of the PCM on stdin"
-            )
-        decoder, chunks = PcmDecoder("--audio -"), read_pipe(sys.stdin.buffer)
-    else:
-        if rate is not None:
-            raise WalkdiffError("--rate is for raw PCM on stdin (--audio -); a WAV file gives its own rate")
-        decoder, chunks = WavDecoder(audio, spec.get("sample_rate")), None
-    stem, out = ("stdin" if from_stdin else Path(audio).stem), output_folder(out)
-    titles, targets = bvh_names(out, stem, seed, streams)
+    generator = GestureGenerator.load(ckpt)
+    request = generator.request(**specs_first(options))
+    decoder = speech_input(audio, rate, generator.model.spec.get("sample_rate"))
+    stem, out = ("stdin" if audio == "-" else Path(audio).stem), output_folder(out)
+    _, targets = request.names(out, stem)
     check_free(targets, overwrite)
-    chunks = chunks if from_stdin else read_growing(audio, idle)  # opened once the outputs are free
-
-    joints = list(spec["joints"])
-    choice = SamplerChoice(sampler, steps, eta)
-    batch, live, poses = GestureBatch(model, seed, choice), [], [[] for _ in range(streams)]
-    limit = None if seconds is None else round(seconds * (rate or 0))
-    received, started = 0, time.perf_counter()
+    chunks = decoder.chunks(idle)  # opened once the outputs are free
+    live, received, started = None, 0, time.perf_counter()
 
     def send(arrived: float) -> None:
-        for k, stream in enumerate(live):
-            made = stream.take()
-            if not len(made):
-                continue
-            first = len(poses[k])
-            poses[k].extend(made)
-            quaternions = file_quaternions(model, made, joints).round(5)
-            latency = round(1000 * (time.perf_counter() - arrived), 1)
-            for i, q in enumerate(quaternions):
-                t = first + i
-                emit({
-                    "stream": k, "frame": t, "time": round(t / spec["fps"], 4),
-                    "audio_time": round(stream.waited[t], 4), "latency_ms": latency, "rotations": q.tolist(),
-                })  # fmt: skip
+        latency = round(1000 * (time.perf_counter() - arrived), 1)
+        for line in live.frames():
+            emit(line | {"latency_ms": latency})
 
-    def start(rate: int) -> None:
-        live.extend(GestureStream(model, rate, batch=batch) for _ in range(streams))
-        emit({
-            "fps": spec["fps"], "rate": rate, "streams": streams, "joints": joints,
-            "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
-            "lookahead_s": round(live[0].features.needed(spec["lookahead"]) / rate, 4),
-        })  # fmt: skip
-
-    if from_stdin:
-        start(rate)
     end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
     with end.watch():
-        for data in chunks:
-            arrived = time.perf_counter()
-            samples = decoder.decode(data)
-            if not live and decoder.rate is not None:
-                rate = decoder.rate
-                limit = None if seconds is None else round(seconds * rate)
-                start(rate)
-            if limit is not None:
-                samples = samples[: max(limit - received, 0)]
-            received += len(samples)
-            for stream in live:
-                stream.feed(samples)
-            batch.run()
-            send(arrived)
-            if limit is not None and received >= limit:
-                break
+        for data in chain([b""], chunks):  # stdin's rate is known before any byte: its header first
+            arrived, samples = time.perf_counter(), decoder.decode(data)
+            if live is None and decoder.rate is not None:
+                live = SpeechStreams(generator, request, decoder.rate)
+                emit(live.header())
+            if live is not None:
+                limit = None if seconds is None else round(seconds * live.rate)
+                samples = samples if limit is None else samples[: max(limit - received, 0)]
+                received += len(samples)
+                live.feed(samples)
+                live.run()
+                send(arrived)
+                if limit is not None and received >= limit:
+                    break
         else:
             decoder.end()
-        for stream in live:
-            stream.close()
-    end.finish(batch.run)
-    send(time.perf_counter())
-    made = _write_streamed(model, targets, poses, smooth)
+        if live is not None:
+            live.close()
+    takes = []
+    if live is not None:
+        end.finish(live.run)
+        send(time.perf_counter())
+        takes = live.takes()
+    if takes:
+        with output_set(out):  # all or none
+            for path, take in zip(targets, takes, strict=True):
+                write_bvh(path, take.motion)
+    made = takes[0].num_frames if takes else 0
     if end.error is not None:
         raise stopped(end.error, made, targets if made else [])
     summary = {
-        "done": True, "frames": made, "seconds": received / rate, "streams": streams,
+        "done": True, "frames": made, "seconds": received / live.rate, "streams": request.num,
         "wall_s": round(time.perf_counter() - started, 3), "files": [str(t) for t in targets],
     }  # fmt: skip
     emit(summary)
     return summary
-
-
-def _write_streamed(model, targets: list[Path], poses: list[list[np.ndarray]], smooth: bool) -> int:
-    """The BVH of each stream's poses, all or none; the frames each holds (0: none made, none written)."""
-    made = min(len(p) for p in poses)  # streams stopped by Ctrl-C within a batch's frame: all as long
-    if made:
-        clips = [np.stack(p[:made]) for p in poses]
-        if smooth:  # the BVH only: the live lines could not wait for the filter's 15 frames ahead
-            clips = [savgol(c, SMOOTH_WINDOW, SMOOTH_ORDER, axis=0) for c in clips]
-        with output_set(targets[0].parent):
-            for path, clip in zip(targets, clips):
-                write_bvh(path, model.to_file(to_motion(model, clip)))
-    return made
 
 
 # ---------------------------------------------------------------- metrics

@@ -40,7 +40,14 @@ from pathlib import Path
 
 from walkdiff.autoregressive.controller import WalkController, checked_speed
 from walkdiff.autoregressive.keys import KeyControl
-from walkdiff.autoregressive.play import Replay, load_controller, settings, take_files, write_takes
+from walkdiff.autoregressive.play import (
+    Replay,
+    keys_for,
+    load_walker,
+    settings,
+    take_files,
+    write_takes,
+)
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
@@ -416,27 +423,16 @@ class PlayPage:
 
 
 def open_page(
-    ckpt: str,
-    out: str | None = None,
-    style: str | None = None,
-    speed: float | None = None,
-    seed: int = 0,
-    sampler: str = "ddim",
-    steps: int | None = None,
-    eta: float | None = None,
-    fps: float | None = None,
-    overwrite: bool = False,
-    **steering,
+    ckpt: str, out: str | None = None, fps: float | None = None, overwrite: bool = False, **options
 ) -> PlayPage:
     """The page's walker loaded and its output folder checked (take.* free unless `overwrite`);
-    `steering`: the controller's transition, turn_rate, heading_assist and foot_lock."""
+    `options`: the walker's, as `PathFollower.controller` takes them (style, speed, seed, the sampler,
+    transition, turn_rate, heading_assist, foot_lock, style_clips, match_clips)."""
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, 1), overwrite)
-    walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, record=False, **steering)
-    clips = steering.get("style_clips")
-    keys = KeyControl(walker.styles, walker.speed_of, style, speed, recording=False, clips=clips)
-    return PlayPage(walker, keys, folder, settings(ckpt, walker, style, speed, seed, fps), fps, overwrite)
+    walker = load_walker(ckpt, record=False, **options)
+    return PlayPage(walker, keys_for(walker, False), folder, settings(ckpt, walker, fps), fps, overwrite)
 
 
 def serve_page(ckpt: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT, **options) -> dict:

@@ -348,11 +348,32 @@ def _follow(path: Path, idle: float, poll: float) -> Iterator[bytes]:
                 time.sleep(poll)
 
 
-class PcmDecoder:
-    """Raw s16le PCM bytes (mono) -> float samples in [-1, 1), as soundfile reads 16-bit WAVs."""
+def speech_input(audio: str, rate: int | None, trained_rate: int | None) -> PcmDecoder | WavDecoder:
+    """The decoder of speech given as `--audio`: raw s16le PCM on stdin ('-', at `rate`, default the
+    rate of the model's training audio `trained_rate`) or a WAV file still being written (its own rate)."""
+    if audio == "-":
+        rate = rate or trained_rate
+        if rate is None:
+            raise WalkdiffError(
+                "--rate: the checkpoint does not record the sample rate of its training audio; give the rate "
+                "of the PCM on stdin"
+            )
+        return PcmDecoder("--audio -", rate)
+    if rate is not None:
+        raise WalkdiffError("--rate is for raw PCM on stdin (--audio -); a WAV file gives its own rate")
+    return WavDecoder(audio, trained_rate)
 
-    def __init__(self, where: str):
-        self.where, self.left, self.bytes = where, b"", 0
+
+class PcmDecoder:
+    """Raw s16le PCM bytes (mono) at `rate` Hz from stdin -> float samples in [-1, 1), as soundfile reads
+    16-bit WAVs."""
+
+    def __init__(self, where: str, rate: int | None = None):
+        self.where, self.left, self.bytes, self.rate = where, b"", 0, rate
+
+    def chunks(self, idle: float) -> Iterator[bytes]:
+        """Standard input's bytes as they come (`idle` is for files)."""
+        return read_pipe(sys.stdin.buffer)
 
     def decode(self, data: bytes) -> np.ndarray:
         data = self.left + data
@@ -384,6 +405,10 @@ class WavDecoder:
         self.floating = False
         self.decoded = 0  # samples given so far
         self.bad: WalkdiffError | None = None  # raised at the next call, once the samples before it are out
+
+    def chunks(self, idle: float) -> Iterator[bytes]:
+        """The file's bytes as they are written, until it has not grown for `idle` seconds."""
+        return read_growing(self.where, idle)
 
     def decode(self, data: bytes) -> np.ndarray:
         if self.bad is not None:

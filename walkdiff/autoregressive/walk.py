@@ -126,30 +126,23 @@ class PathFollower(Pipeline):
 
     @python_api
     def follow(
-        self,
-        path: Polyline | str | os.PathLike | list | np.ndarray,
-        style,
-        speed: float | None = None,
-        seed: int = 0,
-        sampler: str | SamplerChoice | dict = "ddpm",
-        steps: int | None = None,
-        eta: float = 0.0,
-        to: TargetRig | str | os.PathLike | Motion | None = None,
-        to_map=None,
-        transition: float = DEFAULT_TRANSITION,
-        style_clips=None,
-        match_clips: float = MATCH_CLIPS,
+        self, path: Polyline | str | os.PathLike | list | np.ndarray, style, speed=None, seed=0, **options
     ) -> Generated:
         """`style` walking along `path` ((x, z) points or a Polyline in metres, or a path file) at `speed`
         m/s: by default the file's, else the style's own pace in the training data. `style` may be a
-        timeline ('neutral@0,old@4s' or [(0, 'neutral'), (4, 'old')], ramped over `transition` s). `to`
-        (+ `to_map`): a rig to play it on (its root path is then the walk's scaled by the legs' length
-        ratio). `style_clips`: example clips whose pose statistics the walk takes on as well, at
-        `match_clips` (docs/walking.md). The result reads as its one take."""
-        request = self.request(
-            style, speed, sampler, steps, eta, to, to_map, transition, style_clips, match_clips
-        )
-        return self.walk(request, path, seed)
+        timeline ('neutral@0,old@4s' or [(0, 'neutral'), (4, 'old')], ramped over `transition` s).
+        `options`, as `request` takes them: the sampler (sampler, steps, eta), `to` (+ `to_map`), a rig to
+        play it on (its root path is then the walk's scaled by the legs' length ratio), `transition`, and
+        `style_clips`: example clips whose pose statistics the walk takes on as well, at `match_clips`
+        (docs/walking.md). The result reads as its one take."""
+        return self.walk(self.request(style, speed, **options), path, seed)
+
+    @python_api
+    def stream(self, style, speed: float | None = None, seed: int = 0, **options) -> PathStream:
+        """A walk along a path whose points arrive over time (`PathStream`: feed it (x, z) points in
+        metres): one style (no timeline), at `speed` m/s (None: the style's own); `options` as
+        `request`'s, no rig (the live poses are on the model's skeleton)."""
+        return PathStream(self, self.request(style, speed, **options), seed)
 
     @python_api
     def request(
@@ -214,25 +207,16 @@ class PathFollower(Pipeline):
             [take], settings, timing, seed=seed, rig=request.rig, label=request.label, extra=extra
         )
 
-    def controller(
-        self,
-        style: str,
-        speed: float | None = None,
-        seed: int = 0,
-        sampler: str = "ddim",
-        steps: int | None = None,
-        eta: float | None = None,
-        characters: int = 1,
-        **options,
-    ):
+    def controller(self, style=None, speed: float | None = None, seed: int = 0, **options):
         """A `WalkController` (walkdiff/autoregressive/controller.py): `step(direction, speed)` makes the
-        next frame of `characters` walkers starting as `style` (a name, a mix or weights) at `speed` m/s
-        (None: the style's own). Default sampler DDIM 10 steps, eta 1 (docs/live-control.md); `options`:
+        next frame of `characters` walkers starting as `style` (a name, a mix or weights; None: the
+        model's first style with a known speed) at `speed` m/s (None: the style's own). Default sampler
+        DDIM 10 steps, eta 1 (docs/live-control.md); `options`: sampler, steps, eta, characters,
         transition, turn_rate, heading_assist, foot_lock, positions, headings, record, style_clips and
         match_clips (example clips whose posture and swing the walkers take on)."""
         from walkdiff.autoregressive.controller import controller
 
-        return controller(self.model, style, speed, seed, sampler, steps, eta, characters, **options)
+        return controller(self.model, style, speed, seed, **options)
 
     def check(self, style: str, speed: float | None) -> int:
         """The style's index (-1 for a timeline), once the style and the speed (m/s, None: the style's
@@ -267,6 +251,75 @@ class PathFollower(Pipeline):
             self.model, polyline, styles, speed, seed, sampler=choice, match=match
         )
         return to_motion(self.model, raw[0], start), float(speeds[0]) * unit
+
+
+class PathStream:
+    """`PathFollower.stream`'s: a walk along a path whose points arrive over time. `feed` (x, z) points in
+    metres, `run` the frames the path so far allows, `frames` hands those over (on the training files'
+    skeleton), `close` at the path's end; `take` is the whole walk made."""
+
+    def __init__(self, follower: PathFollower, request: WalkRequest, seed: int = 0):
+        from walkdiff.autoregressive.streaming import WalkStream
+
+        if request.timeline is not None:
+            raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is not for --stream; give one style")
+        if request.rig is not None:
+            raise WalkdiffError(
+                "--to does not work with a stream (the live poses are on the model's skeleton); retarget "
+                "the walk it makes"
+            )
+        model = self.model = follower.model
+        self.follower, self.request = follower, request
+        index = follower.styles.index(request.label)
+        self.unit = unit = model.profile.metres_per_unit
+        units_per_s = float(model.style_speed[index]) if request.speed is None else request.speed / unit
+        if not units_per_s > 0:
+            raise WalkdiffError("the checkpoint has no walking speed for this style; give --speed")
+        self.speed_m_s = units_per_s * unit
+        sampler, match = request.sampler, request.match
+        self.walker = WalkStream(model, index, units_per_s, seed, sampler=sampler, match=match)
+        self.raws: list[np.ndarray] = []
+
+    @property
+    def points(self) -> int:
+        """The path points taken so far."""
+        return len(self.walker.points)
+
+    @property
+    def path_length_m(self) -> float:
+        return 0.0 if self.walker.path is None else self.walker.path.length * self.unit
+
+    def header(self) -> dict:
+        return {
+            "fps": self.model.spec["fps"], "joints": self.model.profile.skeleton.names,
+            "units_per_metre": 1 / self.unit,
+        }  # fmt: skip
+
+    def feed(self, points) -> None:
+        """Path points (n, 2) in metres; a WalkdiffError for the first the walk cannot take (those
+        before it are taken)."""
+        self.walker.feed(np.asarray(points, dtype=np.float64).reshape(-1, 2) / self.unit)
+
+    def run(self) -> None:
+        self.walker.batch.run()
+
+    def close(self) -> None:
+        self.walker.close()
+
+    def frames(self) -> tuple[int, Motion | None]:
+        """The frames made since the last call, on the training files' skeleton (None: none), and the
+        number of the first."""
+        made, first = self.walker.take(), len(self.raws)
+        if not len(made):
+            return first, None
+        self.raws.extend(made)
+        return first, self.model.to_file(to_motion(self.model, made, self.walker.roots[first]))
+
+    def take(self) -> Take | None:
+        """The walk made so far (None: no frame)."""
+        if not self.raws:
+            return None
+        return self.follower.take(to_motion(self.model, np.stack(self.raws), self.walker.start))
 
 
 def path_error(path: Polyline, root_xz: np.ndarray) -> dict[str, float]:
@@ -426,14 +479,14 @@ def path_points(chunks, where: str):
         yield [(number + 1, _point(pending, where, number + 1, json))]
 
 
-def _feed(stream, points: list[tuple[int, list[float]]], unit: float, where: str) -> None:
-    """(line number, point in metres) pairs to a WalkStream, which walks in the model's units; a point it
-    refuses (one the walk to which would not fit in memory) is named by its line."""
-    before = len(stream.points)
+def _feed(live: PathStream, points: list[tuple[int, list[float]]], where: str) -> None:
+    """(line number, point in metres) pairs to a PathStream; a point it refuses (one the walk to which
+    would not fit in memory) is named by its line."""
+    before = live.points
     try:
-        stream.feed(np.asarray([point for _, point in points]).reshape(-1, 2) / unit)
+        live.feed([point for _, point in points])
     except WalkdiffError as error:
-        line = points[min(len(stream.points) - before, len(points) - 1)][0]
+        line = points[min(live.points - before, len(points) - 1)][0]
         raise WalkdiffError(error.reason, path=where, line=line) from None
 
 
@@ -456,70 +509,33 @@ def _point(line: bytes, where: str, number: int, json) -> list[float]:
 
 @command
 def walk_stream(
-    ckpt: str,
-    style: str,
-    path: str,
-    out: str,
-    speed: float | None = None,
-    seed: int = 0,
-    idle: float = 2.0,
-    overwrite: bool = False,
-    sampler: str = "ddpm",
-    steps: int | None = None,
-    eta: float = 0.0,
-    style_clips=None,
-    match_clips: float = MATCH_CLIPS,
+    ckpt: str, style: str, path: str, out: str, idle: float = 2.0, overwrite: bool = False, **options
 ) -> dict:
-    """`walkdiff walk --stream`: walking along a path whose points arrive as JSON lines (stdin, or a file
-    still being written), one JSON line per frame on stdout as soon as the path ahead allows, the BVH at
-    the end; with `style_clips`, in their posture and swing as `walk` walks them."""
+    """`walkdiff walk --stream`: `PathFollower.stream`'s walk along a path whose points arrive as JSON
+    lines (stdin, or a file still being written), one JSON line per frame on stdout as soon as the path
+    ahead allows, the BVH at the end. `options`: speed, seed and what `PathFollower.request` takes."""
     import sys
 
-    from walkdiff.autoregressive.streaming import (
-        StreamEnd,
-        WalkStream,
-        emit,
-        read_growing,
-        read_pipe,
-        stopped,
-    )
+    from walkdiff.autoregressive.streaming import StreamEnd, emit, read_growing, read_pipe, stopped
 
-    follower = PathFollower.load(ckpt)
-    model = follower.model
-    request = follower.request(
-        style, speed, sampler, steps, eta, style_clips=style_clips, match_clips=match_clips
-    )
-    if request.timeline is not None:
-        raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is not for --stream; give one style")
-    index = follower.styles.index(request.label)
-    unit, fps = model.profile.metres_per_unit, model.spec["fps"]
-    units_per_s = float(model.style_speed[index]) if speed is None else speed / unit
-    if not units_per_s > 0:
-        raise WalkdiffError("the checkpoint has no walking speed for this style; give --speed")
+    live = PathFollower.load(ckpt).stream(style, **specs_first(options))
     out = output_folder(out)
-    stem = f"{style}_{'stdin' if path == '-' else Path(path).stem}"
-    bvh = out / f"{stem}.bvh"
+    bvh = out / f"{live.request.label}_{'stdin' if path == '-' else Path(path).stem}.bvh"
     check_free([bvh], overwrite)
     chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    stream = WalkStream(model, index, units_per_s, seed, sampler=request.sampler, match=request.match)
-    names = model.profile.skeleton.names
-    emit({
-        "fps": fps, "joints": names, "units_per_metre": 1 / unit,
+    emit(live.header() | {
         "root": "position of the first joint, in the BVH's units and axes",
         "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
     })  # fmt: skip
-    raws, started = [], time.perf_counter()
+    started, fps = time.perf_counter(), live.model.spec["fps"]
 
     def send(arrived: float) -> None:
-        made = stream.take()
-        if not len(made):
+        first, motion = live.frames()
+        if motion is None:
             return
-        first = len(raws)
-        raws.extend(made)
-        motion = model.to_file(to_motion(model, made, stream.roots[first]))
         quaternions = _quaternions(motion.rotations).round(5)
         latency = round(1000 * (time.perf_counter() - arrived), 1)
-        for i in range(len(made)):
+        for i in range(motion.num_frames):
             emit({
                 "frame": first + i, "time": round((first + i) / fps, 4), "latency_ms": latency,
                 "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
@@ -529,21 +545,22 @@ def walk_stream(
     with end.watch():
         for points in path_points(chunks, path):
             arrived = time.perf_counter()
-            _feed(stream, points, unit, path)
-            stream.batch.run()
+            _feed(live, points, path)
+            live.run()
             send(arrived)
-        stream.close()
-    end.finish(stream.batch.run)
+        live.close()
+    end.finish(live.run)
     send(time.perf_counter())
-    if raws:
-        write_bvh(bvh, model.to_file(to_motion(model, np.stack(raws), stream.start)))
+    take = live.take()
+    if take is not None:
+        write_bvh(bvh, take.motion)
+    frames = 0 if take is None else take.num_frames
     if end.error is not None:
-        raise stopped(end.error, len(raws), [bvh] if raws else [])
+        raise stopped(end.error, frames, [bvh] if frames else [])
     summary = {
-        "done": True, "frames": len(raws), "path_length_m": stream.path.length * unit,
-        "speed_m_s": units_per_s * unit, "wall_s": round(time.perf_counter() - started, 3),
-        "style_clips": clips_record(style_clips) or None,
-        "files": [str(bvh)],
+        "done": True, "frames": frames, "path_length_m": live.path_length_m, "speed_m_s": live.speed_m_s,
+        "wall_s": round(time.perf_counter() - started, 3),
+        "style_clips": clips_record(live.request.spec.clips) or None, "files": [str(bvh)],
     }  # fmt: skip
     emit(summary)
     return summary

@@ -8,6 +8,7 @@ import json
 
 from walkdiff.cli.options import (
     PREVIEW_HELP,
+    Renamed,
     frame_sampler_options,
     keyword_options,
     rig_options,
@@ -35,7 +36,10 @@ def add_gesture(sub) -> None:
     p.add_argument("--seed", type=count(0), default=0)
     frame_sampler_options(p)
     p.add_argument("--smooth", action="store_true", help="Savitzky-Golay smoothing (window 31, order 4)")
-    p.add_argument("--streams", type=count(1), default=1, help="samples generated together (default 1)")
+    p.add_argument(
+        "--num", "--streams", type=count(1), default=1, action=Renamed,
+        help="clips generated together (default 1; --streams is its old name)",
+    )  # fmt: skip
     p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument(

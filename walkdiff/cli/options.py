@@ -107,16 +107,16 @@ def rig_options(p: argparse.ArgumentParser, required: bool = False) -> None:
         f"aligned on) or a built-in rig ({', '.join(RIG_NAMES)}); see docs/motion.md#retargeting",
     )  # fmt: skip
     p.add_argument(
-        "--to-map", "--target-map", default=None, action=ToMap,
+        "--to-map", "--target-map", default=None, action=Renamed,
         help="with --to: YAML/JSON of humanoid map overrides (role: joint name)",
     )  # fmt: skip
 
 
-class ToMap(argparse.Action):
-    """--to-map; said as --target-map (its name on `retarget` before the options were one group), it
-    warns and works."""
+class Renamed(argparse.Action):
+    """An option with an old spelling (its second name), which warns and works."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        if option_string == "--target-map":
-            print("walkdiff: warning: --target-map is deprecated; use --to-map", file=sys.stderr)
+        new, old = self.option_strings[:2]
+        if option_string == old:
+            print(f"walkdiff: warning: {old} is deprecated; use {new}", file=sys.stderr)
         setattr(namespace, self.dest, values)
