@@ -151,9 +151,7 @@ class GestureGenerator(Pipeline):
         return GestureRequest(num, seed, bool(smooth), choice, rig)
 
     @python_api
-    def gesture(
-        self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, **options
-    ) -> Generated:
+    def gesture(self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, **options) -> Generated:
         """Gesture clips, one frame per 1/fps of the speech: a WAV file, or samples (N,) or (N,
         channels) at `rate` Hz. `options`: what `request` takes (num, seed, smooth, sampler, steps, eta,
         to, to_map). The result reads as the list of its takes; its `settings` are what `walkdiff
