@@ -16,15 +16,17 @@ import synthetic
 import torch
 
 import walkdiff
-from walkdiff.autoregressive.gesture import GestureGenerator, gesture
-from walkdiff.autoregressive.walk import PathFollower, walk
 from walkdiff.cli.main import main
 from walkdiff.data.speech import read_wav
+from walkdiff.gestures.commands import gesture
+from walkdiff.gestures.generator import GestureGenerator
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline
 from walkdiff.styled import commands
 from walkdiff.styled.pipeline import StyledGenerator
+from walkdiff.walker.commands import walk
+from walkdiff.walker.follow import PathFollower
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = dict(sampler="ddim", steps=2)  # the machinery is the same for every sampler

@@ -11,22 +11,22 @@ import tiny
 import torch
 from PIL import Image
 
-from walkdiff.autoregressive.gesture import (
-    beat_consistency,
-    beat_gain,
-    diversity,
-    l1_distance,
-    load_model,
-    mean_jerk,
-    motion_beats,
-    pck,
-    shift_beats,
-)
 from walkdiff.cli.main import main
 from walkdiff.common import memory
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.speech import SpeechDataModule
 from walkdiff.diffusion import SamplerChoice
+from walkdiff.gestures.evaluate import (
+    beat_consistency,
+    beat_gain,
+    diversity,
+    l1_distance,
+    mean_jerk,
+    motion_beats,
+    pck,
+    shift_beats,
+)
+from walkdiff.gestures.generator import load_model
 from walkdiff.models.diffmotion import ATEncoder, DiffMotion
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.filters import savgol

@@ -22,19 +22,23 @@ ARROWS = {
     "data": ("common", "motion", "spec"),
     "models": ("common", "motion", "diffusion", "spec"),
     "preview": ("common", "motion"),
+    "streams": ("common", "diffusion"),
     "styled": ("common", "motion", "diffusion", "models", "data", "preview"),
-    "autoregressive": ("common", "motion", "diffusion", "metrics", "models", "data", "preview"),
+    "walker": ("common", "motion", "diffusion", "models", "preview", "streams"),
+    "gestures": ("common", "motion", "diffusion", "metrics", "models", "data", "preview", "streams"),
+    "live": ("common", "motion", "preview", "streams", "walker"),
     "evaluation": ("common", "motion", "diffusion", "metrics", "models", "data"),
-    "callbacks": ("common", "motion", "preview", "styled", "autoregressive", "evaluation"),
-    "api": ("common", "autoregressive", "styled"),
+    "callbacks": ("common", "motion", "preview", "styled", "walker", "gestures", "evaluation"),
+    "api": ("common", "styled", "walker", "gestures"),
     "bench": (
-        "common", "motion", "diffusion", "metrics", "models", "data", "preview", "styled", "autoregressive",
-        "evaluation", "callbacks", "api",
+        "common", "motion", "diffusion", "metrics", "models", "data", "preview", "styled", "walker",
+        "gestures", "live", "evaluation", "callbacks", "api",
     ),
     "cli": (
-        "common", "motion", "data", "preview", "styled", "autoregressive", "evaluation", "callbacks", "bench",
+        "common", "motion", "data", "preview", "styled", "walker", "gestures", "live", "evaluation",
+        "callbacks", "bench",
     ),
-    "__init__": ("api", "motion", "common", "styled", "autoregressive", "models", "diffusion"),
+    "__init__": ("api", "motion", "common", "styled", "walker", "gestures", "models", "diffusion"),
 }  # fmt: skip
 # importlib call sites whose module is not written in their file (a class path read from a config or a
 # checkpoint): each one is named here with what it may load.

@@ -13,18 +13,19 @@ import synthetic
 import torch
 from test_speech import RATE, write_take
 
-from walkdiff.autoregressive.gesture import load_model, synthesize
-from walkdiff.autoregressive.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
-from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.speech import LogMelStream, SpeechDataModule, log_mel, read_wav
+from walkdiff.gestures.generator import load_model, synthesize
+from walkdiff.gestures.stream import GestureBatch, GestureStream
 from walkdiff.models.diffmotion import DiffMotion
 from walkdiff.models.path_walker import PathWalker
 from walkdiff.models.style_examples import clip_statistics
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, frames_for
+from walkdiff.walker.follow import load_walker
+from walkdiff.walker.stream import WalkBatch, WalkStream
 
 SPEECH = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=4)
 WALKER = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_layers=2, timesteps=8)

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from walkdiff.autoregressive.gesture import GestureGenerator
-from walkdiff.autoregressive.walk import PathFollower
 from walkdiff.common.checkpoints import KINDS, checkpoint_class
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.gestures.generator import GestureGenerator
 from walkdiff.styled.pipeline import StyledGenerator
+from walkdiff.walker.follow import PathFollower
 
 # The object for each model class a checkpoint can be saved from (common/checkpoints.py KINDS).
 PIPELINES = {

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from walkdiff.common.arguments import count, number
+from walkdiff.common.errors import WalkdiffError
 
 # diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
@@ -120,3 +121,21 @@ class Renamed(argparse.Action):
         if option_string == old:
             print(f"walkdiff: warning: {old} is deprecated; use {new}", file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+def stream_only(options: dict, names: tuple[str, ...]) -> None:
+    """Drop the --stream options from `options`, refusing any that was given without --stream."""
+    defaults = {"rate": None, "seconds": None, "idle": 2.0}
+    for name in names:
+        if options.pop(name) != defaults[name]:
+            raise WalkdiffError(f"--{name} needs --stream")
+    del options["stream"]
+
+
+def no_rig_on_streams(options: dict) -> None:
+    """Streams send their poses as they are made, on the training skeleton: --to is refused there."""
+    if options.pop("to") is not None or options.pop("to_map") is not None:
+        raise WalkdiffError(
+            "--to does not work with --stream (the live poses are on the model's skeleton); retarget the "
+            "BVH the stream writes with `walkdiff retarget BVH --to RIG --out OUT`"
+        )

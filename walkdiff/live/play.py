@@ -2,8 +2,8 @@
 stdin, a pose per frame as a JSON line on stdout) and `walkdiff play --script` (timed key events and
 commands replayed headless into a take written as BVH, glb and the commands per frame).
 
-Both drive a `WalkController` (walkdiff/autoregressive/controller.py); keys go through `KeyControl`
-(walkdiff/autoregressive/keys.py) and `Replay`, which the interactive page (`play_page.py`) shares.
+Both drive a `WalkController` (walkdiff/walker/controller.py); keys go through `KeyControl`
+(walkdiff/live/keys.py) and `Replay`, which the interactive page (`page.py`) shares.
 """
 
 from __future__ import annotations
@@ -17,18 +17,18 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from walkdiff.autoregressive.controller import WalkController, angle_of, checked_speed, style_weights
-from walkdiff.autoregressive.keys import RECORD, KeyControl
-from walkdiff.autoregressive.streaming import StreamEnd, emit, stopped
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder, output_set, read_utf8, write_json
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress
+from walkdiff.live.keys import RECORD, KeyControl
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.resample import resample
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
+from walkdiff.streams.lines import StreamEnd, emit, stopped
+from walkdiff.walker.controller import WalkController, angle_of, checked_speed, style_weights
 
 COMMANDS = ("direction", "speed", "style", "style_clips")
 CONTROL_FIELDS = (*COMMANDS, "character", "frames", "record")
@@ -159,7 +159,7 @@ def keys_for(walker: WalkController, recording: bool) -> KeyControl:
 
 def load_walker(ckpt, **options) -> WalkController:
     """The walker a live command steers: `PathFollower.controller` of the checkpoint."""
-    from walkdiff.autoregressive.walk import PathFollower
+    from walkdiff.walker.follow import PathFollower
 
     return PathFollower.load(ckpt).controller(**options)
 
@@ -261,7 +261,7 @@ def play(
     if script is None:
         raise WalkdiffError(
             "play: give a script (JSON lines of timed key events and commands) to play a take headless; "
-            "`walkdiff play` without --script (walkdiff.autoregressive.play_page) serves the page"
+            "`walkdiff play` without --script (walkdiff.live.page) serves the page"
         )
     if out is None:
         raise WalkdiffError("--out: give the folder for take.bvh, take.glb and take.json")

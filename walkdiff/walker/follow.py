@@ -16,24 +16,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.common.errors import WalkdiffError, command, python_api
-from walkdiff.common.files import check_free, output_folder, output_set, write_atomic, write_json
+from walkdiff.common.errors import WalkdiffError, python_api
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice
-from walkdiff.models.pipeline import Generated, Pipeline, specs_first
+from walkdiff.models.pipeline import Generated, Pipeline
 from walkdiff.models.style_examples import MATCH_CLIPS, clip_statistics, clips_record
-from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline, plot_timeline
+from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, parse_timeline
 from walkdiff.models.style_spec import Style
 from walkdiff.models.style_statistics import StyleStatistics
-from walkdiff.motion.bvh import write_bvh
-from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_path
 from walkdiff.motion.representation import decode
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
-from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
 
 
 def load_walker(path: str | Path, device: str | torch.device = "cpu"):
@@ -208,13 +204,13 @@ class PathFollower(Pipeline):
         )
 
     def controller(self, style=None, speed: float | None = None, seed: int = 0, **options):
-        """A `WalkController` (walkdiff/autoregressive/controller.py): `step(direction, speed)` makes the
+        """A `WalkController` (walkdiff/walker/controller.py): `step(direction, speed)` makes the
         next frame of `characters` walkers starting as `style` (a name, a mix or weights; None: the
         model's first style with a known speed) at `speed` m/s (None: the style's own). Default sampler
         DDIM 10 steps, eta 1 (docs/live-control.md); `options`: sampler, steps, eta, characters,
         transition, turn_rate, heading_assist, foot_lock, positions, headings, record, style_clips and
         match_clips (example clips whose posture and swing the walkers take on)."""
-        from walkdiff.autoregressive.controller import controller
+        from walkdiff.walker.controller import controller
 
         return controller(self.model, style, speed, seed, **options)
 
@@ -259,7 +255,7 @@ class PathStream:
     skeleton), `close` at the path's end; `take` is the whole walk made."""
 
     def __init__(self, follower: PathFollower, request: WalkRequest, seed: int = 0):
-        from walkdiff.autoregressive.streaming import WalkStream
+        from walkdiff.walker.stream import WalkStream
 
         if request.timeline is not None:
             raise WalkdiffError("--style: a timeline (STYLE@SECONDS) is not for --stream; give one style")
@@ -334,242 +330,3 @@ def path_error(path: Polyline, root_xz: np.ndarray) -> dict[str, float]:
         "error_percent": float(100 * distance.mean() / max(walked, 1e-9)),
         "path_covered_percent": float(100 * covered[0] / path.length),
     }
-
-
-START_COLOR, END_COLOR = "#1a9850", "#d7191c"
-
-
-def plot_paths(out: str | Path, panels: list[tuple[str, Polyline, list[tuple[str, np.ndarray]]]]) -> Path:
-    """Top-down plot per path, in metres: the requested path (start and end marked, arrows along it) and
-    each walk's root trajectory.
-
-    Drawn in walkdiff's one axis convention (`walkdiff.preview.render`): seen from above, x to the right and z
-    towards the viewer, that is down the page, as the GIF's camera sees the ground.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    width = max(8.0, 4.5 * len(panels))  # >= 880 px at 110 dpi
-    fig, axes = plt.subplots(1, len(panels), figsize=(width, 6.0), squeeze=False)
-    for ax, (title, path, walks) in zip(axes[0], panels, strict=True):
-        points = path.points
-        ax.plot(points[:, 0], points[:, 1], color="black", lw=4, alpha=0.25, label="requested path")
-        for s in np.linspace(0, path.length, 7)[1:-1]:  # direction arrows along the path
-            at, ahead = path.at(np.array(s)), path.at(np.array(s + 1e-3 * path.length))
-            arrow = {"arrowstyle": "-|>", "color": "0.35", "lw": 0, "mutation_scale": 18}
-            ax.annotate("", xy=tuple(ahead), xytext=tuple(at), arrowprops=arrow)
-        for label, xz in walks:
-            ax.plot(xz[:, 0], xz[:, 1], lw=1.5, label=f"{label} (root)")
-        ax.plot(*points[0], "o", color=START_COLOR, ms=10, label="start")
-        ax.plot(*points[-1], "s", color=END_COLOR, ms=10, label="end")
-        ax.set_aspect("equal", adjustable="datalim")  # a straight path keeps a readable panel width
-        ax.invert_yaxis()  # z towards the viewer: down the page, as in the GIF
-        ax.grid(True, color="0.9")
-        ax.set_title(title)
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("z (m), towards the viewer")
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=9, loc="lower center", ncol=min(len(labels), 6))
-    fig.tight_layout(rect=(0, 0.08, 1, 1))
-    written = write_atomic(out, lambda f: fig.savefig(f, format="png", dpi=110))
-    plt.close(fig)
-    return written
-
-
-def render_walk(gif: Path, take: Take, path: Polyline, cap: PreviewCap, title: str | None = None):
-    """The walk's GIF and MP4, with the requested path (in the take's units) drawn on the ground."""
-    motion = take.canonical()
-    skeleton = motion.skeleton  # without the static joints above the body
-    positions = motion_world_positions(motion.slice(0, cap.frames(motion.num_frames, motion.fps)))
-    return render_gif(
-        gif, [positions], skeleton.parents, motion.fps, names=skeleton.names, cap=cap, video=True,
-        marks=Marks.of(take.profile), paths=[path.points], titles=None if title is None else [title],
-    )  # fmt: skip
-
-
-@command
-def walk(
-    ckpt: str,
-    style: str,
-    path: str,
-    out: str,
-    speed: float | None = None,
-    seed: int = 0,
-    gif: bool = True,
-    preview_seconds: float = PREVIEW_SECONDS,
-    overwrite: bool = False,
-    **request,
-) -> dict:
-    """`walkdiff walk`: `PathFollower.follow`'s walk as a BVH (+ a GIF of its first `preview_seconds` and
-    a top-down plot) and its manifest; a timeline `style` also writes its weights' plot. `request`: the
-    sampler, rig and style clips, as `PathFollower.request` takes them."""
-    request = specs_first(request)
-    cap = PreviewCap(preview_seconds) if gif else None
-    follower = PathFollower.load(ckpt)
-    request = follower.request(style, speed, **request)  # before the path file is read
-    read_path(path)
-    out = output_folder(out)
-    stem = f"{request.label}_{Path(path).stem}"
-    bvh = out / f"{stem}.bvh"
-    written = [bvh, out / f"{stem}_path.png", out / f"{stem}.json"]
-    written += [out / f"{stem}_timeline.png"] if request.timeline is not None else []
-    check_free(written + ([bvh.with_suffix(".gif"), bvh.with_suffix(".mp4")] if gif else []), overwrite)
-
-    # Refused here (a path too long for memory, a style without a speed) before the folder exists.
-    result = follower.walk(request, path, seed)
-    take, extra = result.take, result.extra
-    with output_set(out):
-        files = _write_walk(out, stem, take, extra["metres"], request.label, cap, extra["scale"])
-        if request.timeline is not None:
-            seconds = take.num_frames / take.fps
-            timeline_png = out / f"{stem}_timeline.png"
-            files.append(plot_timeline(timeline_png, request.timeline, list(follower.styles), seconds))
-        manifest = {
-            "checkpoint": str(ckpt),
-            **result.settings,
-            "retarget": None if result.rig is None else result.rig.record(),
-            "files": [str(f) for f in files],
-            "preview": None if cap is None else cap.describe(take.num_frames, take.fps),
-        }
-        write_json(out / f"{stem}.json", manifest)
-    return manifest
-
-
-def _write_walk(
-    out: Path, stem: str, take: Take, metres: Polyline, style: str, cap: PreviewCap | None, scale: float = 1.0
-) -> list[Path]:
-    """A walk's BVH (on the training files' skeleton or a --to rig's), its top-down plot in metres and,
-    unless `cap` is None, its GIF and MP4. On a rig of other proportions the walk's path is the model's
-    scaled by the legs' length ratio (`scale`, in metres): the plot and preview show the requested path
-    scaled the same way."""
-    unit, canonical = take.metres_per_unit, take.canonical()
-    bvh = out / f"{stem}.bvh"
-    root_xz = canonical.root_positions[:, [0, 2]]
-    write_bvh(bvh, take.motion)
-    requested = Polyline.of(metres.points * scale)
-    files = [bvh, plot_paths(out / f"{stem}_path.png", [(stem, requested, [(style, root_xz * unit)])])]
-    if cap is not None:
-        gif = render_walk(out / f"{stem}.gif", take, Polyline.of(requested.points / unit), cap)
-        files += [gif, gif.with_suffix(".mp4")]
-    return files
-
-
-def path_points(chunks, where: str):
-    """Path points (x, z) from JSON lines, `{"x": .., "z": ..}` each, as their bytes arrive: per chunk,
-    (line number, point) for each of its complete lines (blank lines skipped). A bad line is a
-    WalkdiffError naming it, raised once the points before it have been given."""
-    import json
-
-    pending, number = b"", 0
-    for data in chunks:
-        lines = (pending + data).split(b"\n")
-        pending, points = lines.pop(), []
-        try:
-            for line in lines:
-                number += 1
-                if line.strip():
-                    points.append((number, _point(line, where, number, json)))
-        except WalkdiffError as error:
-            yield points  # the walk goes as far as the good points take it
-            raise error
-        yield points
-    if pending.strip():
-        yield [(number + 1, _point(pending, where, number + 1, json))]
-
-
-def _feed(live: PathStream, points: list[tuple[int, list[float]]], where: str) -> None:
-    """(line number, point in metres) pairs to a PathStream; a point it refuses (one the walk to which
-    would not fit in memory) is named by its line."""
-    before = live.points
-    try:
-        live.feed([point for _, point in points])
-    except WalkdiffError as error:
-        line = points[min(live.points - before, len(points) - 1)][0]
-        raise WalkdiffError(error.reason, path=where, line=line) from None
-
-
-def _point(line: bytes, where: str, number: int, json) -> list[float]:
-    try:
-        data = json.loads(line)
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        data = None
-    if (
-        not isinstance(data, dict)
-        or set(data) != {"x", "z"}
-        or not all(isinstance(v, int | float) and math.isfinite(v) for v in data.values())
-    ):
-        text = line.decode("utf-8", "replace").strip()[:60]
-        raise WalkdiffError(
-            f'expected a JSON object {{"x": metres, "z": metres}}, got {text!r}', path=where, line=number
-        )
-    return [float(data["x"]), float(data["z"])]
-
-
-@command
-def walk_stream(
-    ckpt: str, style: str, path: str, out: str, idle: float = 2.0, overwrite: bool = False, **options
-) -> dict:
-    """`walkdiff walk --stream`: `PathFollower.stream`'s walk along a path whose points arrive as JSON
-    lines (stdin, or a file still being written), one JSON line per frame on stdout as soon as the path
-    ahead allows, the BVH at the end. `options`: speed, seed and what `PathFollower.request` takes."""
-    import sys
-
-    from walkdiff.autoregressive.streaming import StreamEnd, emit, read_growing, read_pipe, stopped
-
-    live = PathFollower.load(ckpt).stream(style, **specs_first(options))
-    out = output_folder(out)
-    bvh = out / f"{live.request.label}_{'stdin' if path == '-' else Path(path).stem}.bvh"
-    check_free([bvh], overwrite)
-    chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    emit(live.header() | {
-        "root": "position of the first joint, in the BVH's units and axes",
-        "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
-    })  # fmt: skip
-    started, fps = time.perf_counter(), live.model.spec["fps"]
-
-    def send(arrived: float) -> None:
-        first, motion = live.frames()
-        if motion is None:
-            return
-        quaternions = _quaternions(motion.rotations).round(5)
-        latency = round(1000 * (time.perf_counter() - arrived), 1)
-        for i in range(motion.num_frames):
-            emit({
-                "frame": first + i, "time": round((first + i) / fps, 4), "latency_ms": latency,
-                "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
-            })  # fmt: skip
-
-    end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
-    with end.watch():
-        for points in path_points(chunks, path):
-            arrived = time.perf_counter()
-            _feed(live, points, path)
-            live.run()
-            send(arrived)
-        live.close()
-    end.finish(live.run)
-    send(time.perf_counter())
-    take = live.take()
-    if take is not None:
-        write_bvh(bvh, take.motion)
-    frames = 0 if take is None else take.num_frames
-    if end.error is not None:
-        raise stopped(end.error, frames, [bvh] if frames else [])
-    summary = {
-        "done": True, "frames": frames, "path_length_m": live.path_length_m, "speed_m_s": live.speed_m_s,
-        "wall_s": round(time.perf_counter() - started, 3),
-        "style_clips": clips_record(live.request.spec.clips) or None, "files": [str(bvh)],
-    }  # fmt: skip
-    emit(summary)
-    return summary
-
-
-def _quaternions(rotations: np.ndarray) -> np.ndarray:
-    import roma
-
-    return roma.rotmat_to_unitquat(torch.from_numpy(rotations)).numpy()
-
-
-# ---------------------------------------------------------------- benchmark

@@ -2,7 +2,7 @@
 
 Why a page of our own rather than viser's (`walkdiff view`): viser 1.1 hands no keyboard events to Python,
 and its three.js client needs WebGL, which a browser without a GPU (headless Chromium, a remote desktop)
-runs in software, slowly. The page here is one self-written file, `play_page.html` beside this module: a
+runs in software, slowly. The page here is one self-written file, `page.html` beside this module: a
 2-D canvas drawn in perspective (a floor grid, the walker's trail, its bones in left/right colours), the
 camera following behind the commanded direction, keys and a small panel (style menu, speed slider, record
 button). One local server answers on one port: the `websockets` package (already a dependency) serves
@@ -38,9 +38,11 @@ from http import HTTPStatus
 from importlib import resources
 from pathlib import Path
 
-from walkdiff.autoregressive.controller import WalkController, checked_speed
-from walkdiff.autoregressive.keys import KeyControl
-from walkdiff.autoregressive.play import (
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.common.files import check_free, output_folder
+from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
+from walkdiff.live.keys import KeyControl
+from walkdiff.live.play import (
     Replay,
     keys_for,
     load_walker,
@@ -48,15 +50,13 @@ from walkdiff.autoregressive.play import (
     take_files,
     write_takes,
 )
-from walkdiff.common.errors import WalkdiffError
-from walkdiff.common.files import check_free, output_folder
-from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.preview.scene import limb_sides
+from walkdiff.walker.controller import WalkController, checked_speed
 
 DEFAULT_PORT = 8081
 # A browser opens spare sockets and may close them without a request; websockets logs each as a failed
 # handshake with a traceback. Nothing is wrong then: keep the user's terminal for what is.
-CONNECTIONS = logging.getLogger("walkdiff.play_page.connections")
+CONNECTIONS = logging.getLogger("walkdiff.live.page.connections")
 CONNECTIONS.addFilter(lambda record: record.getMessage() != "opening handshake failed")
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 WHERE = "the page"
@@ -64,7 +64,7 @@ BEHIND_S = 0.25  # a walker this late on its schedule skips ahead instead of cat
 
 
 def page_html() -> bytes:
-    return resources.files("walkdiff.autoregressive").joinpath("play_page.html").read_bytes()
+    return resources.files("walkdiff.live").joinpath("page.html").read_bytes()
 
 
 def address(host: str, port: int) -> str:

@@ -44,7 +44,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.foot_lock import FootLock
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root
@@ -57,6 +56,7 @@ from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
+from walkdiff.walker.foot_lock import FootLock
 
 TRANSITION = 0.5  # seconds a style change is ramped over (live-control.md: seams at style switches)
 TURN_RATE = 720.0  # degrees per second the control's path bends at towards a new direction

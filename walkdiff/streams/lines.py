@@ -1,0 +1,73 @@
+"""What a stream command prints: a JSON line per frame as soon as it is made, and how its input ended
+(as it should, with bad input midway or by Ctrl-C)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from walkdiff.common.errors import WalkdiffError
+
+
+def emit(line: dict) -> None:
+    """One JSON line on stdout, flushed: a live consumer reads it as soon as it is made. One write of the
+    line and its newline: Ctrl-C between print's two writes left a line without its end, and the
+    interrupted stream's summary then joined it."""
+    sys.stdout.write(json.dumps(line, separators=(",", ":")) + "\n")
+    sys.stdout.flush()
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C on a stream, raised once what it made is written: its message says where (the command
+    line prints it on one line and exits 130)."""
+
+
+class StreamEnd:
+    """How a stream command's input ended: as it should, with bad input midway (`error`, a WalkdiffError)
+    or by Ctrl-C (`error`, a KeyboardInterrupt). Every stream command reads its input inside `watch()`,
+    makes its last frames with `finish`, writes the frames made (atomically: a complete file or none),
+    then raises `stopped(end.error, ...)` if the input did not end as it should."""
+
+    def __init__(self) -> None:
+        self.error: WalkdiffError | KeyboardInterrupt | None = None
+
+    @property
+    def interrupted(self) -> bool:
+        return isinstance(self.error, KeyboardInterrupt)
+
+    @contextmanager
+    def watch(self) -> Iterator[None]:
+        """Bad input or Ctrl-C inside stops the input there; the frames made before it are kept."""
+        try:
+            yield
+        except (WalkdiffError, KeyboardInterrupt) as error:
+            self.error = error
+
+    def finish(self, make) -> None:
+        """`make()` the frames the input allows, unless Ctrl-C came (the user wants out, not more
+        frames); a Ctrl-C during it stops it, keeping what it made."""
+        if self.interrupted:
+            return
+        try:
+            make()
+        except KeyboardInterrupt as error:
+            self.error = error
+
+
+def stopped(error: WalkdiffError | KeyboardInterrupt, frames: int, files: list[Path]) -> Exception:
+    """A stream whose input went bad or was interrupted: its last JSON line says so, with the frames made
+    before and the files they were written to; the error to raise names the input's fault (or Ctrl-C) and
+    where those frames are."""
+    if isinstance(error, KeyboardInterrupt):
+        emit({"done": False, "frames": frames, "interrupted": True, "files": [str(f) for f in files]})
+        if not files:
+            return Interrupted(f"{frames} frames made, nothing written")
+        return Interrupted(f"the {frames} frames made so far are in {', '.join(str(f) for f in files)}")
+    emit({"done": False, "frames": frames, "error": str(error), "files": [str(f) for f in files]})
+    if not files:
+        return error
+    kept = f"the {frames} frames made before it are in {', '.join(str(f) for f in files)}"
+    return WalkdiffError(f"{error.reason}; {kept}", path=error.path, line=error.line)
