@@ -4,16 +4,14 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from walkdiff.cli.options import (
     PREVIEW_HELP,
     Renamed,
     frame_sampler_options,
     keyword_options,
-    no_rig_on_streams,
     rig_options,
-    stream_only,
+    whole_or_stream,
 )
 from walkdiff.common.arguments import count, number
 
@@ -94,17 +92,9 @@ def add_evaluate_gesture(sub) -> None:
 
 
 def run_gesture(args: argparse.Namespace) -> None:
-    from walkdiff.common.files import strict_json
     from walkdiff.gestures.commands import gesture, gesture_stream
 
-    options = keyword_options(args)
-    if args.stream:
-        no_rig_on_streams(options)
-        del options["stream"], options["preview_seconds"]
-        gesture_stream(**options)  # prints its own JSON lines
-    else:
-        stream_only(options, ("rate", "seconds", "idle"))
-        print(json.dumps(strict_json(gesture(**options)), indent=2))
+    whole_or_stream(args, gesture, gesture_stream, ("preview_seconds",))
 
 
 def run_evaluate_gesture(args: argparse.Namespace) -> None:

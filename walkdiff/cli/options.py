@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 from walkdiff.common.arguments import count, number
@@ -123,19 +124,27 @@ class Renamed(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
-def stream_only(options: dict, names: tuple[str, ...]) -> None:
-    """Drop the --stream options from `options`, refusing any that was given without --stream."""
-    defaults = {"rate": None, "seconds": None, "idle": 2.0}
-    for name in names:
-        if options.pop(name) != defaults[name]:
+# The options of a command with --stream that only the stream takes, and their defaults.
+STREAM_ONLY = {"rate": None, "seconds": None, "idle": 2.0}
+
+
+def whole_or_stream(args: argparse.Namespace, whole, stream, whole_only: tuple[str, ...]) -> None:
+    """A command with --stream (`walk`, `gesture`): with it, `stream(**options)`, which prints its own JSON
+    lines, without the options only the whole input's function takes (`whole_only`: previews, plots) and
+    refusing --to (the live poses are on the model's skeleton: retarget what it writes); without it,
+    `whole(**options)` with its result printed, refusing the options only a stream takes."""
+    from walkdiff.common.files import strict_json
+
+    options = keyword_options(args)
+    if options.pop("stream"):
+        if options.pop("to") is not None or options.pop("to_map") is not None:
+            raise WalkdiffError(
+                "--to does not work with --stream (the live poses are on the model's skeleton); retarget "
+                "the BVH the stream writes with `walkdiff retarget BVH --to RIG --out OUT`"
+            )
+        stream(**{k: v for k, v in options.items() if k not in whole_only})
+        return
+    for name in set(STREAM_ONLY) & set(options):
+        if options.pop(name) != STREAM_ONLY[name]:
             raise WalkdiffError(f"--{name} needs --stream")
-    del options["stream"]
-
-
-def no_rig_on_streams(options: dict) -> None:
-    """Streams send their poses as they are made, on the training skeleton: --to is refused there."""
-    if options.pop("to") is not None or options.pop("to_map") is not None:
-        raise WalkdiffError(
-            "--to does not work with --stream (the live poses are on the model's skeleton); retarget the "
-            "BVH the stream writes with `walkdiff retarget BVH --to RIG --out OUT`"
-        )
+    print(json.dumps(strict_json(whole(**options)), indent=2))

@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from walkdiff.cli.options import (
     PREVIEW_HELP,
     frame_sampler_options,
-    keyword_options,
-    no_rig_on_streams,
     rig_options,
-    stream_only,
     walker_clip_options,
+    whole_or_stream,
 )
 from walkdiff.common.arguments import count, number
 
@@ -60,15 +57,6 @@ def add_walk(sub) -> None:
 
 
 def run_walk(args: argparse.Namespace) -> None:
-    from walkdiff.common.files import strict_json
     from walkdiff.walker.commands import walk, walk_stream
 
-    options = keyword_options(args)
-    if args.stream:
-        no_rig_on_streams(options)
-        for key in ("stream", "gif", "preview_seconds", "transition"):
-            del options[key]
-        walk_stream(**options)  # prints its own JSON lines
-    else:
-        stream_only(options, ("idle",))
-        print(json.dumps(strict_json(walk(**options)), indent=2))
+    whole_or_stream(args, walk, walk_stream, ("gif", "preview_seconds", "transition"))

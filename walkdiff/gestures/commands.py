@@ -12,12 +12,14 @@ import numpy as np
 from walkdiff.common.errors import command
 from walkdiff.common.files import check_free, output_folder, output_set
 from walkdiff.gestures.generator import GestureGenerator, SpeechStreams, to_motion
+from walkdiff.gestures.stream import speech_input
 from walkdiff.models.pipeline import Pipeline, specs_first
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
+from walkdiff.streams.lines import StreamEnd, emit, finished, pump, sender
 
 
 def write_clips(
@@ -109,58 +111,40 @@ def gesture_stream(
     """`walkdiff gesture --stream`: `GestureGenerator.stream`'s poses as the audio arrives (raw s16le PCM
     on stdin, or a WAV that is still being written), one JSON line per frame on stdout, the BVH(s)
     written at the end. `options`: what `GestureGenerator.request` takes."""
-    from walkdiff.gestures.stream import speech_input
-    from walkdiff.streams.lines import StreamEnd, emit, stopped
-
     generator = GestureGenerator.load(ckpt)
     request = generator.request(**specs_first(options))
     decoder = speech_input(audio, rate, generator.model.spec.get("sample_rate"))
     stem, out = ("stdin" if audio == "-" else Path(audio).stem), output_folder(out)
     _, targets = request.names(out, stem)
     check_free(targets, overwrite)
-    chunks = decoder.chunks(idle)  # opened once the outputs are free
-    live, received, started = None, 0, time.perf_counter()
-
-    def send(arrived: float) -> None:
-        latency = round(1000 * (time.perf_counter() - arrived), 1)
-        for line in live.frames():
-            emit(line | {"latency_ms": latency})
-
+    live, started = SpeechStreams(generator, request), time.perf_counter()
+    arrivals = speech_arrivals(decoder, decoder.chunks(idle), live, seconds)  # opened once outputs are free
     end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
-    with end.watch():
-        for data in chain([b""], chunks):  # stdin's rate is known before any byte: its header first
-            arrived, samples = time.perf_counter(), decoder.decode(data)
-            if live is None and decoder.rate is not None:
-                live = SpeechStreams(generator, request, decoder.rate)
-                emit(live.header())
-            if live is not None:
-                limit = None if seconds is None else round(seconds * live.rate)
-                samples = samples if limit is None else samples[: max(limit - received, 0)]
-                received += len(samples)
-                live.feed(samples)
-                live.run()
-                send(arrived)
-                if limit is not None and received >= limit:
-                    break
-        else:
-            decoder.end()
-        if live is not None:
-            live.close()
-    takes = []
-    if live is not None:
-        end.finish(live.run)
-        send(time.perf_counter())
-        takes = live.takes()
+    pump(end, arrivals, live.feed, live.run, sender(live), live.close)
+    takes = live.takes()
     if takes:
         with output_set(out):  # all or none
             for path, take in zip(targets, takes, strict=True):
                 write_bvh(path, take.motion)
-    made = takes[0].num_frames if takes else 0
-    if end.error is not None:
-        raise stopped(end.error, made, targets if made else [])
-    summary = {
-        "done": True, "frames": made, "seconds": received / live.rate, "streams": request.num,
-        "wall_s": round(time.perf_counter() - started, 3), "files": [str(t) for t in targets],
-    }  # fmt: skip
-    emit(summary)
-    return summary
+    return finished(
+        end, takes[0].num_frames if takes else 0, targets, seconds=live.received / (live.rate or 1),
+        streams=request.num, wall_s=round(time.perf_counter() - started, 3), files=[str(t) for t in targets],
+    )  # fmt: skip
+
+
+def speech_arrivals(decoder, chunks, live: SpeechStreams, seconds: float | None):
+    """(arrival time, samples) of the speech as its bytes come, the first `seconds` of it at most; the
+    streams start (and their header line is printed) once its rate is known: stdin's before any byte,
+    a WAV's with its header."""
+    for data in chain([b""], chunks):
+        arrived, samples = time.perf_counter(), decoder.decode(data)
+        if live.rate is None and decoder.rate is not None:
+            live.start(decoder.rate)
+            emit(live.header())
+        if live.rate is None:
+            continue
+        limit = None if seconds is None else round(seconds * live.rate)
+        yield arrived, samples if limit is None else samples[: max(limit - live.received, 0)]
+        if limit is not None and live.received >= limit:
+            return
+    decoder.end()

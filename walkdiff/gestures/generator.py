@@ -21,6 +21,7 @@ from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.pipeline import Generated, Pipeline
 from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
+from walkdiff.motion.rotations import matrix_to_quaternion
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
@@ -151,7 +152,11 @@ class GestureGenerator(Pipeline):
         """Gestures as the speech arrives (`SpeechStreams`: feed it mono samples at `rate` Hz, default
         the model's training audio's): `options` as `request`'s, no rig (the live poses are on the
         model's skeleton)."""
-        return SpeechStreams(self, self.request(**options), rate)
+        request = self.request(**options)
+        rate = rate or self.model.spec.get("sample_rate")
+        if rate is None:
+            raise WalkdiffError("the checkpoint does not record its audio's sample rate: give the rate")
+        return SpeechStreams(self, request, rate)
 
     def listen(
         self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1
@@ -183,12 +188,13 @@ def mono_samples(audio: np.ndarray, rate: int | None) -> np.ndarray:
 
 class SpeechStreams:
     """`GestureGenerator.stream`'s: the request's `num` gesture streams of one speech whose samples arrive
-    over time. `feed` samples, `run` the frames they allow, `frames` hands those over (the poses as
-    rotations on the file's skeleton), `close` at the end of the speech; `takes` are the clips made,
-    smoothed as asked (the live frames never are: they could not wait for the filter's frames ahead)."""
+    over time at `rate` Hz (None: not known yet, `start` once it is). `feed` samples, `run` the frames
+    they allow, `frames` hands those over (the poses as rotations on the file's skeleton), `close` at the
+    end of the speech; `takes` are the clips made, smoothed as asked (the live frames never are: they
+    could not wait for the filter's frames ahead)."""
 
     def __init__(self, generator: GestureGenerator, request: GestureRequest, rate: int | None = None):
-        from walkdiff.gestures.stream import GestureBatch, GestureStream
+        from walkdiff.gestures.stream import GestureBatch
 
         if request.rig is not None:
             raise WalkdiffError(
@@ -199,9 +205,18 @@ class SpeechStreams:
         self.generator, self.model, self.request = generator, model, request
         self.joints = list(spec["joints"])
         self.batch = GestureBatch(model, request.seed, request.sampler)
-        self.streams = [GestureStream(model, rate, batch=self.batch) for _ in range(request.num)]
-        self.rate = self.streams[0].rate
+        self.streams: list = []
         self.poses: list[list[np.ndarray]] = [[] for _ in range(request.num)]
+        self.rate, self.received = None, 0  # samples fed
+        if rate is not None:
+            self.start(rate)
+
+    def start(self, rate: int) -> None:
+        """The streams, once the speech's sample rate is known."""
+        from walkdiff.gestures.stream import GestureStream
+
+        self.streams = [GestureStream(self.model, rate, batch=self.batch) for _ in range(self.request.num)]
+        self.rate = self.streams[0].rate
 
     def header(self) -> dict:
         spec = self.model.spec
@@ -212,6 +227,7 @@ class SpeechStreams:
         }  # fmt: skip
 
     def feed(self, samples: np.ndarray) -> None:
+        self.received += len(samples)
         for stream in self.streams:
             stream.feed(samples)
 
@@ -245,7 +261,7 @@ class SpeechStreams:
         """The clips made, as long as the shortest (streams stopped by Ctrl-C within a batch's frame);
         none when no frame was made."""
         made = min(len(p) for p in self.poses)
-        if not made:
+        if not self.streams or not made:
             return []
         clips = [np.stack(p[:made]) for p in self.poses]
         if self.request.smooth:
@@ -256,8 +272,6 @@ class SpeechStreams:
 def file_quaternions(model, poses: np.ndarray, joints: list[str]) -> np.ndarray:
     """(F, len(joints), 4) local rotations of `joints` as unit quaternions (x, y, z, w) on the file's
     skeleton and axes (what the BVH holds), for (F, D) features of `model`."""
-    import roma
-
     motion = model.to_file(to_motion(model, poses))
     index = [motion.skeleton.index(name) for name in joints]
-    return roma.rotmat_to_unitquat(torch.from_numpy(motion.rotations[:, index])).numpy()
+    return matrix_to_quaternion(torch.from_numpy(motion.rotations[:, index])).numpy()

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -71,3 +72,48 @@ def stopped(error: WalkdiffError | KeyboardInterrupt, frames: int, files: list[P
         return error
     kept = f"the {frames} frames made before it are in {', '.join(str(f) for f in files)}"
     return WalkdiffError(f"{error.reason}; {kept}", path=error.path, line=error.line)
+
+
+def pump(
+    end: StreamEnd,
+    arrivals: Iterable[tuple[float, object]],
+    feed: Callable,
+    run: Callable[[], object],
+    send: Callable[[float], None],
+    close: Callable[[], None],
+) -> None:
+    """A stream command's input as it arrives: each (arrival time, input) is fed, the frames it allows
+    made and sent (`send(arrived)`), and the input closed at its end. Bad input midway or Ctrl-C stops it
+    there (`end` says which); the frames the input so far allows are made and sent all the same, unless
+    Ctrl-C asked to get out."""
+    with end.watch():
+        for arrived, given in arrivals:
+            feed(given)
+            run()
+            send(arrived)
+        close()
+    end.finish(run)
+    send(time.perf_counter())
+
+
+def finished(end: StreamEnd, frames: int, written: list[Path], **summary) -> dict:
+    """The last line of a stream command whose frames are `written`: its summary when the input ended as
+    it should, else `stopped`'s line and error (those files hold the frames made before)."""
+    if end.error is not None:
+        raise stopped(end.error, frames, written if frames else [])
+    summary = {"done": True, "frames": frames, **summary}
+    emit(summary)
+    return summary
+
+
+def sender(live) -> Callable[[float], None]:
+    """`pump`'s `send` for a stream whose `frames()` hands over its new frames as dicts: each printed as a
+    JSON line with its latency, the milliseconds from the input's arrival to the line."""
+
+    def send(arrived: float) -> None:
+        lines = live.frames()
+        latency = round(1000 * (time.perf_counter() - arrived), 1)
+        for line in lines:
+            emit(line | {"latency_ms": latency})
+
+    return send

@@ -4,11 +4,9 @@ a manifest, or printed as JSON lines as the path arrives."""
 from __future__ import annotations
 
 import math
+import sys
 import time
 from pathlib import Path
-
-import numpy as np
-import torch
 
 from walkdiff.common.errors import WalkdiffError, command
 from walkdiff.common.files import check_free, output_folder, output_set, write_json
@@ -19,6 +17,8 @@ from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.take import Take
 from walkdiff.preview.render import PREVIEW_SECONDS, PreviewCap
+from walkdiff.streams.inputs import read_growing, read_pipe
+from walkdiff.streams.lines import StreamEnd, emit, finished, pump, sender
 from walkdiff.walker.follow import PathFollower, PathStream
 from walkdiff.walker.plots import plot_paths, render_walk
 
@@ -148,60 +148,20 @@ def walk_stream(
     """`walkdiff walk --stream`: `PathFollower.stream`'s walk along a path whose points arrive as JSON
     lines (stdin, or a file still being written), one JSON line per frame on stdout as soon as the path
     ahead allows, the BVH at the end. `options`: speed, seed and what `PathFollower.request` takes."""
-    import sys
-
-    from walkdiff.streams.inputs import read_growing, read_pipe
-    from walkdiff.streams.lines import StreamEnd, emit, stopped
-
     live = PathFollower.load(ckpt).stream(style, **specs_first(options))
     out = output_folder(out)
     bvh = out / f"{live.request.label}_{'stdin' if path == '-' else Path(path).stem}.bvh"
     check_free([bvh], overwrite)
     chunks = read_pipe(sys.stdin.buffer) if path == "-" else read_growing(path, idle)
-    emit(live.header() | {
-        "root": "position of the first joint, in the BVH's units and axes",
-        "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
-    })  # fmt: skip
-    started, fps = time.perf_counter(), live.model.spec["fps"]
-
-    def send(arrived: float) -> None:
-        first, motion = live.frames()
-        if motion is None:
-            return
-        quaternions = _quaternions(motion.rotations).round(5)
-        latency = round(1000 * (time.perf_counter() - arrived), 1)
-        for i in range(motion.num_frames):
-            emit({
-                "frame": first + i, "time": round((first + i) / fps, 4), "latency_ms": latency,
-                "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
-            })  # fmt: skip
-
-    end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
-    with end.watch():
-        for points in path_points(chunks, path):
-            arrived = time.perf_counter()
-            _feed(live, points, path)
-            live.run()
-            send(arrived)
-        live.close()
-    end.finish(live.run)
-    send(time.perf_counter())
+    emit(live.header())
+    started, end = time.perf_counter(), StreamEnd()  # bad input midway or Ctrl-C: the frames so far are kept
+    arrivals = ((time.perf_counter(), points) for points in path_points(chunks, path))
+    pump(end, arrivals, lambda points: _feed(live, points, path), live.run, sender(live), live.close)
     take = live.take()
     if take is not None:
         write_bvh(bvh, take.motion)
-    frames = 0 if take is None else take.num_frames
-    if end.error is not None:
-        raise stopped(end.error, frames, [bvh] if frames else [])
-    summary = {
-        "done": True, "frames": frames, "path_length_m": live.path_length_m, "speed_m_s": live.speed_m_s,
-        "wall_s": round(time.perf_counter() - started, 3),
-        "style_clips": clips_record(live.request.spec.clips) or None, "files": [str(bvh)],
-    }  # fmt: skip
-    emit(summary)
-    return summary
-
-
-def _quaternions(rotations: np.ndarray) -> np.ndarray:
-    import roma
-
-    return roma.rotmat_to_unitquat(torch.from_numpy(rotations)).numpy()
+    return finished(
+        end, 0 if take is None else take.num_frames, [bvh], path_length_m=live.path_length_m,
+        speed_m_s=live.speed_m_s, wall_s=round(time.perf_counter() - started, 3),
+        style_clips=clips_record(live.request.spec.clips) or None, files=[str(bvh)],
+    )  # fmt: skip

@@ -27,6 +27,7 @@ from walkdiff.models.style_spec import Style
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_path
 from walkdiff.motion.representation import decode
+from walkdiff.motion.rotations import matrix_to_quaternion
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
@@ -286,9 +287,12 @@ class PathStream:
         return 0.0 if self.walker.path is None else self.walker.path.length * self.unit
 
     def header(self) -> dict:
+        """What the frames hand over, as the first line of `walkdiff walk --stream` says it."""
         return {
             "fps": self.model.spec["fps"], "joints": self.model.profile.skeleton.names,
             "units_per_metre": 1 / self.unit,
+            "root": "position of the first joint, in the BVH's units and axes",
+            "rotation": "local to the parent joint, quaternion [x, y, z, w], on the BVH's skeleton and axes",
         }  # fmt: skip
 
     def feed(self, points) -> None:
@@ -302,14 +306,23 @@ class PathStream:
     def close(self) -> None:
         self.walker.close()
 
-    def frames(self) -> tuple[int, Motion | None]:
-        """The frames made since the last call, on the training files' skeleton (None: none), and the
-        number of the first."""
+    def frames(self) -> list[dict]:
+        """The frames made since the last call: frame, time, the root's position and the local rotations
+        as quaternions, on the training files' skeleton (as the `header` says)."""
         made, first = self.walker.take(), len(self.raws)
         if not len(made):
-            return first, None
+            return []
         self.raws.extend(made)
-        return first, self.model.to_file(to_motion(self.model, made, self.walker.roots[first]))
+        motion = self.model.to_file(to_motion(self.model, made, self.walker.roots[first]))
+        quaternions = matrix_to_quaternion(torch.from_numpy(motion.rotations)).numpy().round(5)
+        fps = self.model.spec["fps"]
+        return [
+            {
+                "frame": first + i, "time": round((first + i) / fps, 4),
+                "root": motion.positions[i, 0].round(4).tolist(), "rotations": quaternions[i].tolist(),
+            }
+            for i in range(motion.num_frames)
+        ]  # fmt: skip
 
     def take(self) -> Take | None:
         """The walk made so far (None: no frame)."""
