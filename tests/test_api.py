@@ -345,3 +345,53 @@ def test_checkpoints_name_their_model_by_a_path_that_stays_importable(styled, wa
     for class_path in KINDS:
         module, name = class_path.rsplit(".", 1)
         assert isinstance(getattr(importlib.import_module(module), name), type), class_path
+
+
+def test_streams_from_python_make_what_the_whole_input_makes(walker, gestures):
+    """`PathFollower.stream` and `GestureGenerator.stream`, fed piece by piece, hand over every frame once,
+    in order, and end with what `follow` and `gesture` make of the whole input (the stream commands are
+    written on them)."""
+    follower = walkdiff.load(walker)
+    points = [[0, 0], [0, 6], [3, 9], [6, 9]]
+    whole = follower.follow(points, "old", speed=12.0, seed=1)
+    live, lines = follower.stream("old", speed=12.0, seed=1), []
+    for point in points:
+        live.feed([point])
+        live.run()
+        lines += live.frames()
+    live.close()
+    live.run()
+    lines += live.frames()
+    assert [line["frame"] for line in lines] == list(range(whole.num_frames))
+    np.testing.assert_array_equal(live.take().positions, whole.positions)
+    np.testing.assert_allclose([line["root"] for line in lines], whole.positions[:, 0], atol=1e-3)
+    with pytest.raises(walkdiff.WalkdiffError, match="a timeline .* is not for"):
+        follower.stream("neutral@0,old@1", speed=12.0)
+
+    ckpt, takes = gestures
+    model = walkdiff.load(ckpt)
+    samples, rate = read_wav(takes / "b.wav")
+    clips = model.gesture(samples, rate=rate, num=2, seed=4, smooth=True)
+    speech, made = model.stream(rate, num=2, seed=4, smooth=True), []
+    for piece in np.array_split(samples, 7):
+        speech.feed(piece)
+        speech.run()
+        made += speech.frames()
+    speech.close()
+    speech.run()
+    made += speech.frames()
+    assert speech.header()["streams"] == 2 and len(made) == 2 * clips[0].num_frames
+    for k in range(2):
+        assert [line["frame"] for line in made if line["stream"] == k] == list(range(clips[k].num_frames))
+        np.testing.assert_allclose(speech.takes()[k].positions, clips[k].positions, atol=1e-4)
+    with pytest.raises(walkdiff.WalkdiffError, match="--to does not work with a stream|to does not work"):
+        model.stream(rate, to="mixamo")
+
+
+def test_old_spellings_of_the_count_still_work_and_warn(capsys):
+    from walkdiff.cli.main import build_parser
+
+    args = build_parser().parse_args(
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--streams", "3"]
+    )
+    assert args.num == 3 and "--streams is deprecated; use --num" in capsys.readouterr().err
