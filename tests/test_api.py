@@ -278,6 +278,7 @@ def documented_files(xia_dir, xia_tiny, walker, gestures) -> dict[str, Path]:
     a real Xia clip), the tiny walker and gesture model, a Xia walk, speech."""
     return {
         "checkpoints/xia_cpu/best.ckpt": xia_tiny["generator"],
+        "checkpoints/xia_style_codes/best.ckpt": xia_tiny["style_codes"],
         "checkpoints/walk_xia/last.ckpt": walker,
         "checkpoints/diffmotion_zeggs/last.ckpt": gestures[0],
         "my_walk.bvh": xia_dir / "neutral_01_000.bvh",
