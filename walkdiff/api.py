@@ -2,8 +2,9 @@
 
 As with a diffusers pipeline, one object per kind of model holds the trained network, and its methods are
 what the commands generate, without the files: a StyledGenerator (`sample`, `transfer`) for a
-StyledMotionDiffusion, a PathFollower (`follow`) for a PathWalker, a GestureGenerator (`gesture`) for a
-DiffMotion. The manual is docs/api.md.
+StyledMotionDiffusion, a PathFollower (`follow`, `stream`, `controller`) for a PathWalker, a
+GestureGenerator (`gesture`, `stream`) for a DiffMotion. Every generating command, streams and live
+control included, is written on these. The manual is docs/api.md.
 """
 
 from __future__ import annotations
