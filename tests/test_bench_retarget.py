@@ -17,7 +17,7 @@ from walkdiff.bench.retarget import Z_UP, world
 from walkdiff.bench.rig_variants import axes_and_units, random_turns, reframe, rotation_order
 from walkdiff.cli.main import main
 from walkdiff.motion.bvh import read_bvh
-from walkdiff.motion.rigs import RIGS
+from walkdiff.retarget.rigs import RIGS
 
 SAME = 5  # same-proportion cases
 OTHER = ["legs 0.8x", "legs 1.25x", "arms 1.2x", "longer spine (+2 joints)", "hips 0.6x", "hips 1.6x"]

@@ -19,8 +19,8 @@ import pytest
 
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.retarget_files import retarget_file
-from walkdiff.motion.rigs import RIGS, SPECS
+from walkdiff.retarget.files import retarget_file
+from walkdiff.retarget.rigs import RIGS, SPECS
 
 SCRIPT = Path(__file__).with_name("blender_import.py")
 

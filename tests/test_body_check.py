@@ -11,13 +11,13 @@ import pytest
 from walkdiff.bench.rig_variants import legs, reposed
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.motion.body_check import body_problems
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.humanoid import humanoid_map
 from walkdiff.motion.posed_frames import world_transforms
 from walkdiff.motion.profile import SkeletonProfile
-from walkdiff.motion.retarget import Retargeter
-from walkdiff.motion.rigs import SPECS, rig
+from walkdiff.retarget.body_check import body_problems
+from walkdiff.retarget.retargeter import Retargeter
+from walkdiff.retarget.rigs import SPECS, rig
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +108,7 @@ def test_no_humanoid_is_refused(xia, zeggs):
 
 
 def _rest_clip(skeleton):
-    from walkdiff.motion.retarget import _target_motion
+    from walkdiff.retarget.retargeter import _target_motion
 
     return _target_motion(skeleton, None)[0]
 

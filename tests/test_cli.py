@@ -120,7 +120,7 @@ def test_cli_offers_every_sampler_the_samplers_know():
 
 def test_cli_names_every_built_in_rig():
     from walkdiff.cli import options
-    from walkdiff.motion.rigs import RIGS
+    from walkdiff.retarget.rigs import RIGS
 
     assert options.RIG_NAMES == tuple(RIGS)
 

@@ -1,4 +1,4 @@
-"""Retargeting (`walkdiff.motion.retarget`) on tests that know the answer.
+"""Retargeting (`walkdiff.retarget.retargeter`) on tests that know the answer.
 
 - A copy of Xia's own skeleton with another rest pose (arms from T to A pose, legs spread and bent),
   every local frame turned at random (the motion compensated), Z up, other units, another rotation
@@ -41,8 +41,8 @@ from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.humanoid import SIDES, humanoid_map
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import foot_contacts
-from walkdiff.motion.retarget import Retargeter, retarget
 from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.retarget.retargeter import Retargeter, retarget
 
 HEIGHT = 24.13  # Xia's body height, units
 
@@ -267,7 +267,7 @@ def test_the_retarget_command_writes_each_built_in_rig_and_a_users_rig(xia_dir, 
     feet on the target's floor; a BVH rig and .glb; bad targets and outputs named."""
     from walkdiff.cli.main import main
     from walkdiff.motion.kinematics import motion_world_positions
-    from walkdiff.motion.rigs import SPECS, rig
+    from walkdiff.retarget.rigs import SPECS, rig
 
     source = xia_dir / "proud_01_000.bvh"
     frames = read_bvh(source).num_frames

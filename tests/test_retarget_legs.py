@@ -21,9 +21,9 @@ from walkdiff.bench.rig_variants import hips
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.resample import resample
-from walkdiff.motion.retarget import Retargeter, _eased_above
-from walkdiff.motion.rigs import rig
 from walkdiff.motion.skeleton import Motion
+from walkdiff.retarget.retargeter import Retargeter, _eased_above
+from walkdiff.retarget.rigs import rig
 
 BAR_DEG = 3.0  # issue 46: the worst leg bone's median
 

@@ -14,8 +14,8 @@ import walkdiff
 from walkdiff.cli.main import main
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.rigs import RIGS, SPECS, rig
 from walkdiff.preview.view import load_clips
+from walkdiff.retarget.rigs import RIGS, SPECS, rig
 from walkdiff.styled import commands
 from walkdiff.walker.commands import walk
 

@@ -1,4 +1,4 @@
-"""Built-in target rigs (`walkdiff.motion.rigs`): each is a standing human of the asked stature, in its
+"""Built-in target rigs (`walkdiff.retarget.rigs`): each is a standing human of the asked stature, in its
 own names, axes, units and local frames, with the proportions of the published table, that BVH keeps and
 the skeleton profile reads right.
 
@@ -18,7 +18,7 @@ from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.mirror import find_mirror_pairs
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.profile_detection import AXES, axis_rotation
-from walkdiff.motion.rigs import RIGS, SPECS, STATURE_M, rig
+from walkdiff.retarget.rigs import RIGS, SPECS, STATURE_M, rig
 
 # Joints playing each role on the left side (and the centre), per rig.
 ROLES = {

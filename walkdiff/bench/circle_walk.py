@@ -16,8 +16,8 @@ import numpy as np
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import contact_state
-from walkdiff.motion.rest_alignment import forward_kinematics_np
 from walkdiff.motion.skeleton import Motion
+from walkdiff.retarget.rest_alignment import forward_kinematics_np
 
 WALKING_SPEED_M_S = 0.5  # a clip whose body goes on average this fast over the ground walks (or runs)
 

@@ -62,10 +62,10 @@ from walkdiff.motion.humanoid import SIDES, humanoid_map
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
 from walkdiff.motion.resample import resample
-from walkdiff.motion.rest_alignment import forward_kinematics_np
-from walkdiff.motion.retarget import Retargeter
-from walkdiff.motion.rigs import RIGS, rig
 from walkdiff.motion.skeleton import Motion
+from walkdiff.retarget.rest_alignment import forward_kinematics_np
+from walkdiff.retarget.retargeter import Retargeter
+from walkdiff.retarget.rigs import RIGS, rig
 
 # Bones (role to role) whose world direction must follow the source's; the legs' two long bones are
 # bent by the foot IK when the proportions differ, and measured without it (LEGS).

@@ -220,7 +220,7 @@ class WalkSamples(L.Callback):
         self, pl_module, logger, artifact_dir: str, folder: Path | None = None, step: int = 0
     ) -> list[Path]:
         from walkdiff.motion.path import Polyline
-        from walkdiff.motion.take import Take
+        from walkdiff.retarget.take import Take
         from walkdiff.walker.follow import path_error, to_motion, walk_paths
         from walkdiff.walker.plots import plot_paths, render_walk
 

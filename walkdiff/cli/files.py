@@ -146,10 +146,10 @@ def run_inspect(args: argparse.Namespace) -> None:
 
 
 def run_convert(args: argparse.Namespace) -> None:
-    from walkdiff.motion.conversion import convert_file
+    from walkdiff.retarget.files import convert
 
     print(
-        convert_file(
+        convert(
             args.input,
             args.output,
             fps=args.fps,
@@ -163,7 +163,7 @@ def run_convert(args: argparse.Namespace) -> None:
 
 
 def run_retarget(args: argparse.Namespace) -> None:
-    from walkdiff.motion.retarget_files import retarget_file
+    from walkdiff.retarget.files import retarget_file
 
     print(
         retarget_file(

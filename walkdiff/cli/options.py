@@ -13,7 +13,7 @@ from walkdiff.common.errors import WalkdiffError
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
 # diffusion.MAX_GUIDANCE, repeated for the same reason (a test keeps them equal).
 MAX_GUIDANCE = 100.0
-# motion.rigs.RIGS, repeated for the same reason (a test keeps them equal).
+# retarget.rigs.RIGS, repeated for the same reason (a test keeps them equal).
 RIG_NAMES = ("mixamo", "unreal", "smpl")
 GUIDANCE_HELP = f"classifier-free guidance weight in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful)"
 SAMPLER_HELP = (
@@ -100,7 +100,7 @@ def keyword_options(args: argparse.Namespace) -> dict:
 
 
 def rig_options(p: argparse.ArgumentParser, required: bool = False) -> None:
-    """--to and --to-map: the rig the written motion is played on (walkdiff.motion.target_rig), the same
+    """--to and --to-map: the rig the written motion is played on (walkdiff.retarget.target_rig), the same
     on every command that writes motion. --target-map, retarget's old name of --to-map, still works (and
     warns)."""
     p.add_argument(

@@ -16,9 +16,9 @@ from walkdiff.gestures.stream import speech_input
 from walkdiff.models.pipeline import Pipeline, specs_first
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.render import DEFAULT_PREVIEW, PREVIEW_SECONDS, PreviewCap, render_gif
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 from walkdiff.streams.lines import StreamEnd, emit, finished, pump, sender
 
 

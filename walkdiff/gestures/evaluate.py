@@ -38,7 +38,7 @@ from walkdiff.gestures.commands import write_clips
 from walkdiff.gestures.generator import SMOOTH_ORDER, SMOOTH_WINDOW, joint_positions, load_model, synthesize
 from walkdiff.metrics import Jitter
 from walkdiff.motion.filters import savgol
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.target_rig import TargetRig
 
 BEAT_SIGMA = 0.1  # seconds
 

@@ -23,8 +23,8 @@ from walkdiff.motion.filters import savgol
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.rotations import matrix_to_quaternion
 from walkdiff.motion.skeleton import Motion
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 
 SMOOTH_WINDOW, SMOOTH_ORDER = 31, 4  # DiffMotion's Savitzky–Golay settings
 

@@ -25,8 +25,8 @@ from walkdiff.live.keys import RECORD, KeyControl
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.resample import resample
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 from walkdiff.streams.lines import StreamEnd, emit, stopped
 from walkdiff.walker.controller import WalkController, angle_of, checked_speed, style_weights
 

@@ -16,8 +16,8 @@ from walkdiff.models.base import MotionModule
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion, Skeleton
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 
 
 def specs_first(options: dict) -> dict:

@@ -18,8 +18,6 @@ from walkdiff.motion.profile_detection import NO_FEET, translation_off_offsets
 from walkdiff.motion.representation import decode, encode, foot_contacts, start_pose
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
 
 ROUND_TRIP = 1e-3  # of the body height: how far `convert` may move a joint before it refuses to write
 
@@ -104,19 +102,8 @@ def _humanoid_lines(motion: Motion) -> list[str]:
     ]
 
 
-def convert_file(
-    source: str,
-    target: str,
-    *,
-    fps: float | None = None,
-    mirror_sides: bool = False,
-    profile: str | None = None,
-    overwrite: bool = False,
-    to: str | None = None,
-    to_map: str | None = None,
-) -> str:
-    """BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed where it started; or,
-    with `to`, (resample) -> (mirror) -> played by that rig (`TargetRig`) on its skeleton."""
+def check_convert(source: str, target: str, fps: float | None, overwrite: bool) -> None:
+    """What `convert` refuses before it reads anything (with `--to` or without)."""
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise WalkdiffError(f"--fps: expected a positive frame rate, got {fps}")
     if Path(target).suffix.lower() not in (".bvh", ".glb"):
@@ -125,7 +112,12 @@ def convert_file(
         raise WalkdiffError("the output is the input: write to another file", path=target)
     if Path(target).exists() and not overwrite:
         raise WalkdiffError("the output exists; pass --overwrite to replace it", path=target)
-    rig = TargetRig.of(to, to_map)  # a wrong --to is said before the clip is read
+
+
+def read_for_convert(
+    source: str, profile: str | None, fps: float | None, mirror_sides: bool
+) -> tuple[Motion, SkeletonProfile, Motion]:
+    """The clip as read, its profile, and the canonical clip `convert` writes: (resampled) (mirrored)."""
     motion = read_bvh(source)
     found = file_profile(motion, profile, source)
     canonical = found.to_canonical(motion)
@@ -138,9 +130,23 @@ def convert_file(
                 path=source,
             )
         canonical = mirror(canonical, found.body_pairs)
+    return motion, found, canonical
+
+
+def convert_file(
+    source: str,
+    target: str,
+    *,
+    fps: float | None = None,
+    mirror_sides: bool = False,
+    profile: str | None = None,
+    overwrite: bool = False,
+) -> str:
+    """BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed where it started (or
+    glTF as it is). `walkdiff convert` with --to is `walkdiff.retarget.files.convert`."""
+    check_convert(source, target, fps, overwrite)
+    motion, found, canonical = read_for_convert(source, profile, fps, mirror_sides)
     mirrored = " (mirrored)" if mirror_sides else ""
-    if rig is not None:
-        return _write_retargeted(target, Take(found.to_file(canonical), found).retarget(rig), rig) + mirrored
     if Path(target).suffix.lower() == ".glb":  # glTF is Y-up in metres: the canonical clip, scaled
         write_glb(target, canonical, found.metres_per_unit)
         frames = f"{canonical.num_frames} frames at {canonical.fps:g} fps"
@@ -159,18 +165,6 @@ def convert_file(
     write_bvh(target, out)
     rebuilt = f"; {', '.join(found.carriers)} given the root's path again" if found.carriers else ""
     return f"wrote {target}: {out.num_frames} frames at {out.fps:g} fps{mirrored}{rebuilt}"
-
-
-def _write_retargeted(target: str, take: Take, rig: TargetRig) -> str:
-    if Path(target).suffix.lower() == ".glb":
-        take.to_glb(target, overwrite=True)  # the no-overwrite check came first
-    else:
-        take.to_bvh(target, overwrite=True)
-    ratio = rig.record()["leg_ratio"][0]
-    return (
-        f"wrote {target}: {take.num_frames} frames at {take.fps:g} fps on {rig.named} "
-        f"({take.skeleton.num_joints} joints), legs {ratio:.3f}x the source's"
-    )
 
 
 def check_round_trip(reference: Motion, back: Motion, found: SkeletonProfile, source, what: str) -> None:

@@ -26,7 +26,7 @@ import torch
 from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions
-from walkdiff.motion.rest_alignment import rotation_between
+from walkdiff.motion.rotations import rotation_between
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 # A leg is never stretched to exactly its full length: the knee angle would lose its direction.

@@ -66,3 +66,24 @@ def matrix_to_quaternion(m: torch.Tensor) -> torch.Tensor:
 def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
     """(..., 4) XYZW quaternions (normalised here) -> (..., 3, 3)."""
     return roma.unitquat_to_rotmat(roma.quat_normalize(q))
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) smallest rotations turning directions `a` onto `b` (..., 3): a half turn about an
+    axis across `a` where they are opposite."""
+    a = a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-300)
+    b = b / np.maximum(np.linalg.norm(b, axis=-1, keepdims=True), 1e-300)
+    v, c = np.cross(a, b), np.sum(a * b, axis=-1)
+    k = np.zeros(a.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    opposite = c < -1 + 1e-9
+    scale = np.where(opposite, 0.0, 1.0 / np.maximum(1.0 + c, 1e-9))[..., None, None]
+    out = np.eye(3) + k + k @ k * scale
+    if opposite.any():
+        helper = np.where(np.abs(a[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+        n = np.cross(a, helper)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        half = 2 * n[..., :, None] * n[..., None, :] - np.eye(3)
+        out = np.where(opposite[..., None, None], half, out)
+    return out

@@ -19,9 +19,9 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.conversion import file_profile
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
 from walkdiff.preview.scene import limb_sides
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 
 CENTRE = (60, 60, 60)
 ROW_SPACING = 1.2  # metres between the clips' rows

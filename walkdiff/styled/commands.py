@@ -19,8 +19,8 @@ from walkdiff.models.pipeline import Generated, specs_first
 from walkdiff.models.style_labels import plot_timeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.take import Take
 from walkdiff.preview.render import PREVIEW_SECONDS, Marks, PreviewCap, render_gif
+from walkdiff.retarget.take import Take
 from walkdiff.styled.generation import short_note
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
 

@@ -36,8 +36,8 @@ from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.footfix import fix_feet as pinned_feet
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
 from walkdiff.motion.skeleton import Motion
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 from walkdiff.styled.generation import (
     Sampling,
     generate_long,

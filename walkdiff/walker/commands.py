@@ -15,8 +15,8 @@ from walkdiff.models.style_examples import clips_record
 from walkdiff.models.style_labels import plot_timeline
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.path import Polyline, read_path
-from walkdiff.motion.take import Take
 from walkdiff.preview.render import PREVIEW_SECONDS, PreviewCap
+from walkdiff.retarget.take import Take
 from walkdiff.streams.inputs import read_growing, read_pipe
 from walkdiff.streams.lines import StreamEnd, emit, finished, pump, sender
 from walkdiff.walker.follow import PathFollower, PathStream

@@ -55,7 +55,7 @@ from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
-from walkdiff.motion.take import Take
+from walkdiff.retarget.take import Take
 from walkdiff.walker.foot_lock import FootLock
 
 TRANSITION = 0.5  # seconds a style change is ramped over (live-control.md: seams at style switches)

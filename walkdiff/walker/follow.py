@@ -29,8 +29,8 @@ from walkdiff.motion.path import Polyline, checked_polyline, frames_for, read_pa
 from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion
 from walkdiff.motion.skeleton import Motion
-from walkdiff.motion.take import Take
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig
 
 
 def load_walker(path: str | Path, device: str | torch.device = "cpu"):

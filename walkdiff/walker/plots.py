@@ -10,8 +10,8 @@ import numpy as np
 from walkdiff.common.files import write_atomic
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline
-from walkdiff.motion.take import Take
 from walkdiff.preview.render import Marks, PreviewCap, render_gif
+from walkdiff.retarget.take import Take
 
 START_COLOR, END_COLOR = "#1a9850", "#d7191c"
 

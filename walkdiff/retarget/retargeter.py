@@ -6,7 +6,7 @@ the translation of the joint that carries its root motion change. Per clip (`Ret
 1. rotations: every target joint on a chain of the humanoid map turns in the world as its source joint
    turns away from its reference pose, with the rest-pose difference taken out per bone, and chains
    the rigs divide differently (spines of other lengths, CMU's hip joints) spread over the target's
-   joints (`walkdiff.motion.rest_alignment`). Joints on no chain (a static root, twist and IK helpers,
+   joints (`walkdiff.retarget.rest_alignment`). Joints on no chain (a static root, twist and IK helpers,
    fingers only the target has) keep their reference pose; `RetargetResult.rest_joints` names them.
    Left and right are never swapped: roles carry their side from the maps.
 2. proportions: the pelvis goes where the source's does along the ground, times the legs' length ratio
@@ -44,13 +44,15 @@ import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import single_thread
-from walkdiff.motion.body_check import check_body
 from walkdiff.motion.footfix import MAX_REACH, ankle_offsets, bend_leg, contact_runs
 from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map, leg_length
 from walkdiff.motion.posed_frames import ancestors, rest_pose_problem
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
-from walkdiff.motion.rest_alignment import (
+from walkdiff.motion.rotations import rotation_between
+from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.retarget.body_check import check_body
+from walkdiff.retarget.rest_alignment import (
     Drive,
     Reference,
     alignment,
@@ -58,9 +60,7 @@ from walkdiff.motion.rest_alignment import (
     forward_kinematics_np,
     pose_points,
     reference_pose,
-    rotation_between,
 )
-from walkdiff.motion.skeleton import Motion, Skeleton
 
 FEET_MODES = ("follow", "pin", "off")
 BLEND_SECONDS = 0.05  # a pinned foot's correction fades in and out over this long around its contact
@@ -92,7 +92,7 @@ class Retargeter:
     user's rig. Maps: a `HumanoidMap`, a dict of overrides, or None (found). `reference_frame`: the
     frame of `source` to align on instead of the source's rest pose (by default used only when the
     rest pose is no pose: then a standing frame is found). Profiles are detected unless given. A source
-    or target that does not stand like a biped (`walkdiff.motion.body_check`) is refused unless `force`.
+    or target that does not stand like a biped (`walkdiff.retarget.body_check`) is refused unless `force`.
     """
 
     def __init__(

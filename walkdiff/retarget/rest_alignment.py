@@ -42,6 +42,7 @@ import numpy as np
 
 from walkdiff.motion.humanoid import FINGERS, SIDES, HumanoidMap, path_between
 from walkdiff.motion.posed_frames import subtree
+from walkdiff.motion.rotations import rotation_between
 from walkdiff.motion.skeleton import Motion, Skeleton
 
 Point = tuple[int, "np.ndarray | None"]  # a joint, and an offset in its own frame (an End Site) or None
@@ -345,27 +346,6 @@ class _Spec:
     primary: tuple[np.ndarray, np.ndarray] | None
     secondary: tuple[np.ndarray, np.ndarray] | None = None
     chord: tuple[Chain, float, float] | None = None
-
-
-def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) smallest rotations turning directions `a` onto `b` (..., 3): a half turn about an
-    axis across `a` where they are opposite."""
-    a = a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-300)
-    b = b / np.maximum(np.linalg.norm(b, axis=-1, keepdims=True), 1e-300)
-    v, c = np.cross(a, b), np.sum(a * b, axis=-1)
-    k = np.zeros(a.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
-    opposite = c < -1 + 1e-9
-    scale = np.where(opposite, 0.0, 1.0 / np.maximum(1.0 + c, 1e-9))[..., None, None]
-    out = np.eye(3) + k + k @ k * scale
-    if opposite.any():
-        helper = np.where(np.abs(a[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-        n = np.cross(a, helper)
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        half = 2 * n[..., :, None] * n[..., None, :] - np.eye(3)
-        out = np.where(opposite[..., None, None], half, out)
-    return out
 
 
 def _frame(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray | None:

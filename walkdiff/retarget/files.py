@@ -1,8 +1,9 @@
-"""`walkdiff retarget SRC --to TARGET --out OUT`: a BVH clip played by another rig, written as that rig's
-BVH (its skeleton, channels, axes and units) or as `.glb`.
+"""`walkdiff retarget SRC --to TARGET --out OUT` and `walkdiff convert` (with --to, the clip resampled and
+mirrored first): a BVH clip played by another rig, written as that rig's BVH (its skeleton, channels, axes
+and units) or as `.glb`.
 
 TARGET is a BVH of the user's rig (its first frame is the pose it is aligned on: export the rig
-standing, in its bind pose or any standing frame) or the name of a built-in rig (`walkdiff.motion.rigs`).
+standing, in its bind pose or any standing frame) or the name of a built-in rig (`walkdiff.retarget.rigs`).
 """
 
 from __future__ import annotations
@@ -12,9 +13,11 @@ from pathlib import Path
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import read_config
 from walkdiff.motion.bvh import read_bvh, write_bvh
+from walkdiff.motion.conversion import check_convert, convert_file, read_for_convert
 from walkdiff.motion.gltf import write_glb
-from walkdiff.motion.retarget import Retargeter
-from walkdiff.motion.target_rig import rig_clip
+from walkdiff.retarget.retargeter import Retargeter
+from walkdiff.retarget.take import Take
+from walkdiff.retarget.target_rig import TargetRig, rig_clip
 
 
 def retarget_file(
@@ -62,3 +65,35 @@ def retarget_file(
     ]
     lines += [f"  {line}" for line in retargeter.describe()]  # its notes too, each once
     return "\n".join(lines)
+
+
+def convert(
+    source: str,
+    target: str,
+    *,
+    fps: float | None = None,
+    mirror_sides: bool = False,
+    profile: str | None = None,
+    overwrite: bool = False,
+    to: str | None = None,
+    to_map: str | None = None,
+) -> str:
+    """`walkdiff convert`: without `to` (and `to_map`), motion's `convert_file` (through the features, on
+    the same skeleton); with it, (resample) -> (mirror) -> played by that rig (`TargetRig`) on its
+    skeleton, after the same refusals in the same order."""
+    if to is None and to_map is None:
+        return convert_file(source, target, fps=fps, mirror_sides=mirror_sides, profile=profile, overwrite=overwrite)
+    check_convert(source, target, fps, overwrite)
+    rig = TargetRig.of(to, to_map)  # a wrong --to (or --to-map without it) is said before the clip is read
+    _, found, canonical = read_for_convert(source, profile, fps, mirror_sides)
+    take = Take(found.to_file(canonical), found).retarget(rig)
+    if Path(target).suffix.lower() == ".glb":
+        take.to_glb(target, overwrite=True)  # the no-overwrite check came first
+    else:
+        take.to_bvh(target, overwrite=True)
+    ratio = rig.record()["leg_ratio"][0]
+    mirrored = " (mirrored)" if mirror_sides else ""
+    return (
+        f"wrote {target}: {take.num_frames} frames at {take.fps:g} fps on {rig.named} "
+        f"({take.skeleton.num_joints} joints), legs {ratio:.3f}x the source's{mirrored}"
+    )

@@ -17,9 +17,9 @@ from walkdiff.common.files import read_config
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.humanoid import HumanoidMap
 from walkdiff.motion.profile import SkeletonProfile
-from walkdiff.motion.retarget import Retargeter, RetargetResult
-from walkdiff.motion.rigs import RIGS, rig
 from walkdiff.motion.skeleton import Motion, Skeleton
+from walkdiff.retarget.retargeter import Retargeter, RetargetResult
+from walkdiff.retarget.rigs import RIGS, rig
 
 
 def rig_clip(target: str | os.PathLike) -> tuple[Motion, str]:

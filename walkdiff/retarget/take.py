@@ -20,7 +20,7 @@ from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.skeleton import Motion, Skeleton
-from walkdiff.motion.target_rig import TargetRig
+from walkdiff.retarget.target_rig import TargetRig
 
 # How the no-overwrite error names the way out, in Python.
 OVERWRITE = "overwrite=True"
