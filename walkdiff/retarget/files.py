@@ -82,7 +82,9 @@ def convert(
     the same skeleton); with it, (resample) -> (mirror) -> played by that rig (`TargetRig`) on its
     skeleton, after the same refusals in the same order."""
     if to is None and to_map is None:
-        return convert_file(source, target, fps=fps, mirror_sides=mirror_sides, profile=profile, overwrite=overwrite)
+        return convert_file(
+            source, target, fps=fps, mirror_sides=mirror_sides, profile=profile, overwrite=overwrite
+        )
     check_convert(source, target, fps, overwrite)
     rig = TargetRig.of(to, to_map)  # a wrong --to (or --to-map without it) is said before the clip is read
     _, found, canonical = read_for_convert(source, profile, fps, mirror_sides)
