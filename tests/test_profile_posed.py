@@ -22,11 +22,11 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.folder import FolderSource
 from walkdiff.data.preprocess import detect_profile, preprocess
 from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.motion.conversion import convert_file
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import encode
 from walkdiff.motion.resample import resample
+from walkdiff.retarget.files import convert_file
 
 CLIPS = ("angry_01_000", "proud_02_000", "neutral_07_000")  # walks of upright walkers
 FRAMES = 240  # 2 s at 120 fps: a few steps

@@ -146,10 +146,10 @@ def run_inspect(args: argparse.Namespace) -> None:
 
 
 def run_convert(args: argparse.Namespace) -> None:
-    from walkdiff.retarget.files import convert
+    from walkdiff.retarget.files import convert_file
 
     print(
-        convert(
+        convert_file(
             args.input,
             args.output,
             fps=args.fps,

@@ -1,4 +1,5 @@
-"""`walkdiff inspect` and `walkdiff convert`: look at any BVH file, or push it through the representation."""
+"""`walkdiff inspect` and `walkdiff convert`: look at any BVH file, or push it through the representation
+(`walkdiff.retarget.files.convert_file` runs `convert`, with --to on another rig)."""
 
 from __future__ import annotations
 
@@ -133,19 +134,12 @@ def read_for_convert(
     return motion, found, canonical
 
 
-def convert_file(
-    source: str,
-    target: str,
-    *,
-    fps: float | None = None,
-    mirror_sides: bool = False,
-    profile: str | None = None,
-    overwrite: bool = False,
+def write_converted(
+    source: str, target: str, motion: Motion, found: SkeletonProfile, canonical: Motion, mirror_sides: bool
 ) -> str:
-    """BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed where it started (or
-    glTF as it is). `walkdiff convert` with --to is `walkdiff.retarget.files.convert`."""
-    check_convert(source, target, fps, overwrite)
-    motion, found, canonical = read_for_convert(source, profile, fps, mirror_sides)
+    """`convert` without --to: the clip `motion` read from `source`, as `read_for_convert` made it
+    (`canonical`), written to `target` on its own skeleton: glTF as it is, BVH through the features
+    (placed where it started), refused when the round trip would move a joint."""
     mirrored = " (mirrored)" if mirror_sides else ""
     if Path(target).suffix.lower() == ".glb":  # glTF is Y-up in metres: the canonical clip, scaled
         write_glb(target, canonical, found.metres_per_unit)

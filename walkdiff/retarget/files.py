@@ -1,6 +1,6 @@
-"""`walkdiff retarget SRC --to TARGET --out OUT` and `walkdiff convert` (with --to, the clip resampled and
-mirrored first): a BVH clip played by another rig, written as that rig's BVH (its skeleton, channels, axes
-and units) or as `.glb`.
+"""`walkdiff retarget SRC --to TARGET --out OUT`: a BVH clip played by another rig, written as that rig's
+BVH (its skeleton, channels, axes and units) or as `.glb`. `walkdiff convert` runs here too: its steps are
+`motion/conversion.py`'s, and with --to the clip (resampled, mirrored) is played on a rig the same way.
 
 TARGET is a BVH of the user's rig (its first frame is the pose it is aligned on: export the rig
 standing, in its bind pose or any standing frame) or the name of a built-in rig (`walkdiff.retarget.rigs`).
@@ -13,7 +13,7 @@ from pathlib import Path
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import read_config
 from walkdiff.motion.bvh import read_bvh, write_bvh
-from walkdiff.motion.conversion import check_convert, convert_file, read_for_convert
+from walkdiff.motion.conversion import check_convert, read_for_convert, write_converted
 from walkdiff.motion.gltf import write_glb
 from walkdiff.retarget.retargeter import Retargeter
 from walkdiff.retarget.take import Take
@@ -67,7 +67,7 @@ def retarget_file(
     return "\n".join(lines)
 
 
-def convert(
+def convert_file(
     source: str,
     target: str,
     *,
@@ -78,16 +78,14 @@ def convert(
     to: str | None = None,
     to_map: str | None = None,
 ) -> str:
-    """`walkdiff convert`: without `to` (and `to_map`), motion's `convert_file` (through the features, on
-    the same skeleton); with it, (resample) -> (mirror) -> played by that rig (`TargetRig`) on its
-    skeleton, after the same refusals in the same order."""
-    if to is None and to_map is None:
-        return convert_file(
-            source, target, fps=fps, mirror_sides=mirror_sides, profile=profile, overwrite=overwrite
-        )
+    """`walkdiff convert`: BVH -> (resample) -> (mirror) -> features -> BVH on the same skeleton, placed
+    where it started (or glTF); with `to`, (resample) -> (mirror) -> played by that rig (`TargetRig`) on
+    its skeleton."""
     check_convert(source, target, fps, overwrite)
-    rig = TargetRig.of(to, to_map)  # a wrong --to (or --to-map without it) is said before the clip is read
-    _, found, canonical = read_for_convert(source, profile, fps, mirror_sides)
+    rig = TargetRig.of(to, to_map)  # a wrong --to is said before the clip is read
+    motion, found, canonical = read_for_convert(source, profile, fps, mirror_sides)
+    if rig is None:
+        return write_converted(source, target, motion, found, canonical, mirror_sides)
     take = Take(found.to_file(canonical), found).retarget(rig)
     if Path(target).suffix.lower() == ".glb":
         take.to_glb(target, overwrite=True)  # the no-overwrite check came first
