@@ -24,15 +24,17 @@ ARROWS = {
     "preview": ("common", "motion"),
     "styled": ("common", "motion", "diffusion", "models", "data", "preview"),
     "autoregressive": ("common", "motion", "diffusion", "metrics", "models", "data", "preview"),
+    "export": ("common", "diffusion", "models", "data"),
     "evaluation": ("common", "motion", "diffusion", "metrics", "models", "data"),
     "callbacks": ("common", "motion", "preview", "styled", "autoregressive", "evaluation"),
     "api": ("common", "autoregressive", "styled"),
     "bench": (
         "common", "motion", "diffusion", "metrics", "models", "data", "preview", "styled", "autoregressive",
-        "evaluation", "callbacks", "api",
+        "export", "evaluation", "callbacks", "api",
     ),
     "cli": (
-        "common", "motion", "data", "preview", "styled", "autoregressive", "evaluation", "callbacks", "bench",
+        "common", "motion", "data", "preview", "styled", "autoregressive", "export", "evaluation", "callbacks",
+        "bench",
     ),
     "__init__": ("api", "motion", "common", "styled", "autoregressive", "models", "diffusion"),
 }  # fmt: skip

@@ -165,7 +165,16 @@ def add_gesture(bench) -> None:
     b.add_argument("--steps", type=count(1), default=10, help="its steps (default 10)")
     b.add_argument("--eta", type=number(0, 1), default=1.0, help="DDIM noise (default 1: as DDPM's steps)")
     b.add_argument("--streams", default="16,64,128", help="batched streams timed (default 16,64,128)")
+    runtime_option(b)
     b.set_defaults(run=run_gesture)
+
+
+def runtime_option(b) -> None:
+    b.add_argument(
+        "--runtime", choices=("torch", "onnx"), default="torch",
+        help="what makes each frame: torch (default) or the frame exported to ONNX and run by ONNX Runtime "
+        "on --threads threads (docs/game-engines.md)",
+    )  # fmt: skip
 
 
 def run_gesture(args: argparse.Namespace) -> None:
@@ -173,7 +182,7 @@ def run_gesture(args: argparse.Namespace) -> None:
 
     bench_gesture(
         args.out, args.ckpt, args.frames, args.repeats, args.sampler, args.steps, args.eta,
-        frame_counts(args.streams, "--streams"),
+        frame_counts(args.streams, "--streams"), args.runtime,
     )  # fmt: skip
 
 

@@ -1,0 +1,160 @@
+"""The walker and the gesture model where games run (issue 44): `walkdiff export --format onnx`, its JSON
+contract, and ONNX Runtime making the torch model's frames (`--runtime onnx`).
+
+Parity is judged where an engine sees it: the joints' world positions over 300 frames, ONNX Runtime
+against torch for the same seed (the noise drawn in the same order), at most 1e-4 of the body's height
+apart. The tiny models are trained for a few steps only: enough to have real weights, normalisers and a
+skeleton; nothing here says anything about motion quality.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tiny
+import torch
+
+from walkdiff.autoregressive.controller import controller
+from walkdiff.autoregressive.gesture import joint_positions, load_model
+from walkdiff.autoregressive.walk import load_walker
+from walkdiff.cli.main import main
+from walkdiff.common.errors import WalkdiffError
+from walkdiff.diffusion import SamplerChoice
+from walkdiff.export.runtime import OnnxFrames, frame_runtime
+from walkdiff.models.diffmotion import DiffMotion
+from walkdiff.models.path_walker import PathWalker
+
+FRAMES = 300
+FEW = SamplerChoice("ddim", 4, 1.0)  # the tiny models have 8 and 10 trained steps
+TOLERANCE = 1e-4  # of the body's height
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def gesture_ckpt(tmp_path_factory):
+    return tiny.gestures(tmp_path_factory.mktemp("onnx_gestures"))[0]
+
+
+@pytest.fixture(scope="module")
+def walker_ckpt(xia_dir, tmp_path_factory):
+    root = tmp_path_factory.mktemp("onnx_walker")
+    (root / "xia").mkdir()
+    for style in ("neutral", "old"):  # the walks of conftest's xia_tiny, its walker alone
+        for content in (1, 2, 3, 5, 6, 7):
+            name = f"{style}_{content:02d}_000.bvh"
+            (root / "xia" / name).symlink_to(xia_dir / name)
+    return tiny.walker(root)[1]
+
+
+def mlp_walker(ckpt) -> PathWalker:
+    """The tiny walker's data, normalisers and skeleton with conf/walk_xia.yaml's kind of network (an MLP
+    denoiser predicting x0, the control beside the state), small and at random weights, read-out included."""
+    base = load_walker(ckpt)
+    torch.manual_seed(1)
+    model = PathWalker(
+        base.spec, hidden=32, lstm_layers=2, control_hidden=16, denoiser="mlp", denoiser_hidden=48,
+        denoiser_layers=2, prediction="x0", control_to_denoiser=True, timesteps=20,
+    )  # fmt: skip
+    torch.nn.init.normal_(model.eps_net.output.weight, std=0.05)
+    for name in ("normalizer", "control_normalizer"):
+        getattr(model, name).load_state_dict(getattr(base, name).state_dict())
+    model.style_speed.copy_(base.style_speed)
+    model.profile = base.profile
+    return model.eval()
+
+
+def height(positions: np.ndarray) -> float:
+    return float(np.ptp(positions[..., 1]))
+
+
+def walk(model, frames: int = FRAMES) -> np.ndarray:
+    """World joint positions (F, 2 characters, J, 3) of two walkers told to turn, speed up and stop."""
+    walker = controller(model, "old", seed=3, sampler="ddim", steps=4, characters=2)
+    out = []
+    for frame in range(frames):
+        if frame == 60:
+            walker.command(direction=90.0)
+        if frame == 150:
+            walker.command(speed=1.6, character=1)
+        if frame == 240:
+            walker.command(speed=0.0, character=0)
+        out.append(np.stack([p.positions for p in walker.advance()]))
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("network", ["timegrad", "mlp"])
+def test_walker_frames_match_torch(walker_ckpt, network):
+    model = load_walker(walker_ckpt) if network == "timegrad" else mlp_walker(walker_ckpt)
+    torch_positions = walk(model)
+    onnx_positions = walk(OnnxFrames(model, FEW))
+    moved = np.linalg.norm(torch_positions[-1, :, 0] - torch_positions[0, :, 0], axis=-1)
+    assert (moved > 0.5).all(), "the walkers did not walk: nothing to compare"
+    error = np.abs(onnx_positions - torch_positions).max()
+    print(f"walker ({network}): largest difference {error:.3g}, body height {height(torch_positions):.3g}")
+    assert error <= TOLERANCE * height(torch_positions), (error, height(torch_positions))
+
+
+def test_gesture_frames_match_torch(gesture_ckpt):
+    model = load_model(gesture_ckpt)
+    normal = model.audio_normalizer
+    audio = normal.mean + normal.std * torch.randn(
+        FRAMES, model.spec["audio_dim"], generator=torch.Generator().manual_seed(0)
+    )
+    streams = 2
+    made = []
+    for runner in (model, OnnxFrames(model, FEW)):
+        poses = DiffMotion.generate(runner, audio, torch.Generator().manual_seed(5), streams, sampler=FEW)
+        made.append(np.stack([joint_positions(model, p) for p in poses.numpy()]))
+    assert np.abs(made[0][:, 1:] - made[0][:, :-1]).max() > 1e-3, (
+        "the gestures do not move: nothing to compare"
+    )
+    error = np.abs(made[1] - made[0]).max()
+    print(f"gestures: largest difference {error:.3g}, body height {height(made[0]):.3g}")
+    assert error <= TOLERANCE * height(made[0]), (error, height(made[0]))
+
+
+def test_export_writes_graph_and_contract(gesture_ckpt, walker_ckpt, tmp_path):
+    import onnxruntime
+
+    for ckpt, kind in ((gesture_ckpt, "gesture"), (walker_ckpt, "walker")):
+        out = tmp_path / kind
+        assert (
+            main(["export", "--format", "onnx", "--ckpt", str(ckpt), "--out", str(out), "--steps", "4"]) == 0
+        )
+        terms = json.loads((out / f"{kind}.json").read_text())
+        assert terms["kind"] == kind and terms["onnx"] == f"{kind}.onnx"
+        assert terms["sampler"]["label"] == "ddim-4-eta1" and len(terms["sampler"]["timesteps"]) == 4
+        session = onnxruntime.InferenceSession(str(out / terms["onnx"]), providers=["CPUExecutionProvider"])
+        declared = {i["name"]: i["shape"] for i in terms["inputs"]}
+        assert {i.name for i in session.get_inputs()} == set(declared)
+        for given in session.get_inputs():  # every axis fixed but the batch, as the contract says
+            fixed = [d if isinstance(d, int) else "batch" for d in given.shape]
+            assert fixed == declared[given.name], given.name
+        assert [o.name for o in session.get_outputs()] == [o["name"] for o in terms["outputs"]]
+        skeleton = terms["skeleton"]
+        assert len(skeleton["names"]) == len(skeleton["parents"]) == len(skeleton["offsets"])
+        assert (
+            main(["export", "--format", "onnx", "--ckpt", str(ckpt), "--out", str(out)]) == 1
+        )  # not unasked
+    assert main(["export", "--ckpt", str(gesture_ckpt), "--out", str(tmp_path / "s"), "--steps", "4"]) == 1
+
+
+def test_runtime_refuses_what_it_cannot_run(walker_ckpt, xia_dir):
+    walker_clip = xia_dir / "old_01_000.bvh"
+    model = load_walker(walker_ckpt)
+    with pytest.raises(WalkdiffError, match="--runtime"):
+        frame_runtime(model, "tensorrt")
+    frames = OnnxFrames(model, FEW)
+    with pytest.raises(WalkdiffError, match="made for ddim-4-eta1, not ddim-2"):
+        frames.start_streams(1, SamplerChoice("ddim", 2, 1.0))
+    with pytest.raises(WalkdiffError, match="torch runtime"):
+        controller(frames, "old", sampler="ddim", steps=4).command(style_clips=str(walker_clip))
