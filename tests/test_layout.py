@@ -33,8 +33,8 @@ ARROWS = {
         "export", "evaluation", "callbacks", "api",
     ),
     "cli": (
-        "common", "motion", "data", "preview", "styled", "autoregressive", "export", "evaluation", "callbacks",
-        "bench",
+        "common", "motion", "data", "preview", "styled", "autoregressive", "export", "evaluation",
+        "callbacks", "bench",
     ),
     "__init__": ("api", "motion", "common", "styled", "autoregressive", "models", "diffusion"),
 }  # fmt: skip

@@ -32,17 +32,91 @@ def frame_kind(model) -> str:
     )
 
 
+class PlainEps(nn.Module):
+    """The eps network as it is, its step embeddings computed once per sampler step."""
+
+    def __init__(self, net: nn.Module, timesteps: list[int]):
+        super().__init__()
+        self.net = net
+        with torch.no_grad():
+            self.embeddings = [net.embed_steps(torch.tensor([t])) for t in timesteps]
+
+    def condition(self, h: torch.Tensor) -> torch.Tensor:
+        return self.net.condition(h)
+
+    def forward(self, x: torch.Tensor, k: int, cond: torch.Tensor) -> torch.Tensor:
+        return self.net(x, self.embeddings[k], cond)
+
+
+class LeanTimeGrad(nn.Module):
+    """TimeGrad's eps network (`EpsNetwork`) in the fewest graph nodes, the same arithmetic.
+
+    ONNX Runtime spends about a microsecond a node whatever its size, and a traced `EpsNetwork` is over
+    a hundred nodes a step (a pad, two slices and a concatenation per dilated tap, reshapes that follow
+    the batch). Here the pose is laid out channels-first (B, C, D), so a dilated kernel-3 layer is one
+    Conv node with the trained (3 C, 2 C) weights rearranged; 1x1 convolutions read the gated outputs;
+    and the residual scale 1/sqrt(2) is folded into the weights (layer i sees y / a^i, a = 1/sqrt(2)), so
+    each residual update is one Add. The conditioner and each step's embedding are the same numbers.
+    """
+
+    def __init__(self, net, timesteps: list[int]):
+        super().__init__()
+        a = 0.7071067811865476
+        c, layers = net.channels, net.layers
+        self.dilations = net.dilations
+        with torch.no_grad():
+            steps = [net.embed_steps(torch.tensor([t])) for t in timesteps]  # (layers, 1, 1, 2C)
+            self.step_bias = [e.reshape(1, layers * 2 * c, 1).clone() for e in steps]
+            self.up = net.cond_upsample
+            self.cond_weight = net.cond_proj.weight[:, 0].reshape(1, -1, 1).clone()
+            self.cond_bias = net.cond_proj.bias.reshape(1, -1, 1).clone()
+            self.input_weight = net.input.weight[:, 0].reshape(1, c, 1).clone()
+            self.input_bias = net.input.bias.reshape(1, c, 1).clone()
+            # taps [y(i - d), y(i), y(i + d)] @ W (3C, 2C) as a Conv weight (2C, C, 3), y_i = a^i y^_i.
+            self.dilated = [
+                (w.view(3, c, 2 * c).permute(2, 1, 0) * a**i).contiguous() for i, w in enumerate(net.dilated)
+            ]
+            self.residual = [
+                (r.t() / a ** (i + 1))[..., None].contiguous() for i, r in enumerate(net.residual)
+            ]
+            self.skip_weight = net.skip.weight[..., None].clone()
+            self.skip_bias = net.skip.bias.clone()
+            self.output_weight = net.output.weight[..., None].clone()
+            self.output_bias = net.output.bias.clone()
+        self.split, self.channels = [2 * c] * layers, c
+
+    def condition(self, h: torch.Tensor) -> list[torch.Tensor]:
+        """(B, cond_dim) -> (B, layers 2C, D): each pose number's conditioner, once a frame."""
+        return self.up(h).unsqueeze(1) * self.cond_weight + self.cond_bias
+
+    def forward(self, x: torch.Tensor, k: int, cond: torch.Tensor) -> torch.Tensor:
+        import torch.nn.functional as F
+
+        y = F.leaky_relu(x.unsqueeze(1) * self.input_weight + self.input_bias, 0.4)
+        biases = torch.split(cond + self.step_bias[k], self.split, dim=1)
+        gated = []
+        for i, dilation in enumerate(self.dilations):
+            z = F.conv1d(y, self.dilated[i], padding=dilation, dilation=dilation) + biases[i]
+            gate, value = torch.split(z, self.channels, dim=1)
+            g = torch.sigmoid(gate) * torch.tanh(value)
+            gated.append(g)
+            if i < len(self.residual):
+                y = y + F.conv1d(g, self.residual[i])
+        skip = F.leaky_relu(F.conv1d(torch.cat(gated, dim=1), self.skip_weight, self.skip_bias), 0.4)
+        return F.conv1d(skip, self.output_weight, self.output_bias).squeeze(1)
+
+
 class FrameGraph(nn.Module):
     """The frame of `model` under `sampler`; `WalkerFrame` and `GestureFrame` add their control."""
 
     def __init__(self, model, sampler: SamplerChoice):
+        from walkdiff.models.diffmotion import EpsNetwork
+
         super().__init__()
         self.model = model.eval()
         self.steps = sampler.table(model.diffusion)
-        with torch.no_grad():
-            embed = model.eps_net.embed_steps
-            device = model.device
-            self.embeddings = [embed(torch.tensor([t], device=device)) for t in self.steps.timesteps]
+        lean = isinstance(model.eps_net, EpsNetwork)
+        self.eps = (LeanTimeGrad if lean else PlainEps)(model.eps_net, self.steps.timesteps)
 
     @property
     def noise_slots(self) -> int:
@@ -53,10 +127,10 @@ class FrameGraph(nn.Module):
         """(pose in feature units, pose normalised, h, c) of one frame from the encoded control."""
         model, steps = self.model, self.steps
         h_top, (h, c) = model.encoder.step(torch.cat([previous, encoded], dim=1), (h, c))
-        cond = model.eps_net.condition(model.denoiser_input(h_top, encoded))
+        cond = self.eps.condition(model.denoiser_input(h_top, encoded))
         x, x0_prev = noise[0], None
         for k in range(len(steps.timesteps)):
-            out = model.eps_net(x, self.embeddings[k], cond)
+            out = self.eps(x, k, cond)
             x0 = x * steps.x0_x_coef[k] + out * steps.x0_out_coef[k] if any(steps.prev_coef) else None
             x = x * steps.x_coef[k] + out * steps.out_coef[k]
             if steps.prev_coef[k]:
