@@ -158,3 +158,42 @@ def test_runtime_refuses_what_it_cannot_run(walker_ckpt, xia_dir):
         frames.start_streams(1, SamplerChoice("ddim", 2, 1.0))
     with pytest.raises(WalkdiffError, match="torch runtime"):
         controller(frames, "old", sampler="ddim", steps=4).command(style_clips=str(walker_clip))
+
+
+def test_streams_out_of_step_match_torch(gesture_ckpt):
+    """Streams fed at different paces advance a few rows at a time (`advance(rows=...)`): the same
+    frames on both runtimes."""
+    from walkdiff.autoregressive.streaming import GestureBatch, GestureStream
+
+    model = load_model(gesture_ckpt)
+    rate = model.spec["sample_rate"]
+    audio = np.random.default_rng(0).normal(0, 0.1, 3 * rate).astype(np.float32)
+    made = []
+    for runner in (model, OnnxFrames(model, FEW)):
+        batch = GestureBatch(runner, 7, FEW)
+        streams = [GestureStream(runner, rate, batch=batch) for _ in range(3)]
+        for start in range(0, len(audio), rate // 4):
+            for k, stream in enumerate(streams):  # stream k is fed k + 1 pieces a round, then catches up
+                stream.feed(audio[start * (k + 1) // 3 : (start + rate // 4) * (k + 1) // 3])
+            batch.run()
+        made.append([np.stack(s.made) for s in streams])
+    for torch_poses, onnx_poses in zip(*made, strict=True):
+        assert len(torch_poses) == len(onnx_poses) > 5
+        assert np.abs(torch_poses - onnx_poses).max() <= 1e-3 * np.abs(torch_poses).max()
+
+
+def test_benches_run_on_onnx_runtime(gesture_ckpt, walker_ckpt, tmp_path):
+    out = tmp_path / "gesture.json"
+    assert main(["bench", "gesture", "--runtime", "onnx", "--ckpt", str(gesture_ckpt), "--out", str(out),
+                 "--frames", "2", "--repeats", "1", "--steps", "4", "--streams", "2,3"]) == 0  # fmt: skip
+    result = json.loads(out.read_text())
+    assert result["runtime"] == "onnx" and result["sampler"] == "ddim-4-eta1"
+    assert result["ms_per_frame_1_stream"] > 0 and result["ms_per_frame_graph_alone"] > 0
+    assert set(result["frames_per_second_batched"]) == {"2", "3"}
+    out = tmp_path / "stream.json"
+    assert main(["bench", "stream", "--runtime", "onnx", "--out", str(out), "--ckpt", str(gesture_ckpt),
+                 "--walker", str(walker_ckpt), "--seconds", "1", "--frames", "1", "--most", "2", "--threads",
+                 "1", "--sampler", "ddim", "--steps", "4", "--eta", "1"]) == 0  # fmt: skip
+    result = json.loads(out.read_text())
+    assert result["runtime"] == "onnx" and result["walk"]["frames_measured"] > 0
+    assert 0 <= result["gesture"]["realtime_streams"] <= 2 and 0 <= result["walk"]["realtime_streams"] <= 2

@@ -215,6 +215,7 @@ def add_stream(bench) -> None:
         help="torch thread counts the streams are timed at (default 1,2; latency: 1)",
     )
     frame_sampler_options(b)
+    runtime_option(b)
     b.set_defaults(run=run_stream)
 
 
@@ -224,6 +225,7 @@ def run_stream(args: argparse.Namespace) -> None:
     bench_stream(
         args.out, args.ckpt, args.walker, args.seconds, args.chunk_ms, args.rate, args.frames, args.most,
         threads=frame_counts(args.threads, "--threads"), sampler=args.sampler, steps=args.steps, eta=args.eta,
+        runtime=args.runtime,
     )  # fmt: skip
 
 
@@ -453,6 +455,7 @@ def add_play(bench) -> None:
     b.add_argument(
         "--frames", type=count(1), default=30, help="frames timed per character count (default 30)"
     )
+    runtime_option(b)
     b.set_defaults(run=run_play)
 
 
@@ -463,7 +466,7 @@ def run_play(args: argparse.Namespace) -> None:
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
         args.transition, frame_counts(args.characters, "--characters"), args.frames,
         switch_seeds=args.switch_seeds, turn_rate=args.turn_rate, heading_assist=args.heading_assist,
-        foot_lock=args.foot_lock,
+        foot_lock=args.foot_lock, runtime=args.runtime,
     )  # fmt: skip
 
 

@@ -77,13 +77,18 @@ class OnnxFrames:
     """A PathWalker or DiffMotion whose frames ONNX Runtime makes (see the module docstring)."""
 
     def __init__(
-        self, model, sampler: SamplerChoice = DEFAULT_SAMPLER, threads: int = 1, data: bytes | None = None
+        self,
+        model,
+        sampler: SamplerChoice = DEFAULT_SAMPLER,
+        threads: int | None = None,
+        data: bytes | None = None,
     ):
         self.model = model.eval()
         self.kind = frame_kind(model)
         self.sampler = sampler.unguided()
         self.table = sampler.table(model.diffusion)
-        self.session = session(data if data is not None else graph_bytes(model, sampler), threads)
+        self.data = data if data is not None else graph_bytes(model, sampler)
+        self.threads, self.sessions = threads, {}
         self.noise_slots = len(self.table.timesteps) + 1
         if self.kind == "gesture":
             self.encoder = _AudioPassThrough(model)
@@ -95,6 +100,15 @@ class OnnxFrames:
 
     def eval(self) -> OnnxFrames:
         return self
+
+    @property
+    def session(self):
+        """The session on `threads` threads (None: as many as torch uses now, so `--threads` and the
+        benches' thread counts apply to ONNX Runtime too), made once per count."""
+        count = self.threads or torch.get_num_threads()
+        if count not in self.sessions:
+            self.sessions[count] = session(self.data, count)
+        return self.sessions[count]
 
     # ------------------------------------------------------------ the frame interface
 
@@ -164,8 +178,11 @@ class OnnxFrames:
         return torch.from_numpy(x)
 
 
-def frame_runtime(model, runtime: str = "torch", sampler: SamplerChoice | None = None, threads: int = 1):
-    """The model itself (torch), or `OnnxFrames` of it under `sampler` (default: ddim 10 steps, eta 1)."""
+def frame_runtime(
+    model, runtime: str = "torch", sampler: SamplerChoice | None = None, threads: int | None = None
+):
+    """The model itself (torch), or `OnnxFrames` of it under `sampler` (default: ddim 10 steps, eta 1) on
+    `threads` threads (None: torch's count at each frame)."""
     if runtime not in RUNTIMES:
         raise WalkdiffError(f"--runtime: expected one of {', '.join(RUNTIMES)}, got {runtime!r}")
     return model if runtime == "torch" else OnnxFrames(model, sampler or DEFAULT_SAMPLER, threads)
