@@ -197,3 +197,63 @@ def test_benches_run_on_onnx_runtime(gesture_ckpt, walker_ckpt, tmp_path):
     result = json.loads(out.read_text())
     assert result["runtime"] == "onnx" and result["walk"]["frames_measured"] > 0
     assert 0 <= result["gesture"]["realtime_streams"] <= 2 and 0 <= result["walk"]["realtime_streams"] <= 2
+
+
+def test_the_contract_alone_makes_the_same_frames(gesture_ckpt, walker_ckpt, tmp_path):
+    """docs/onnx_loop.py, which knows only the JSON and ONNX Runtime, walks and gestures as walkdiff does
+    for the same noise: the joints' world positions within 1e-4 of the body's height."""
+    import ast
+    import math
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from walkdiff.autoregressive.gesture import to_motion
+    from walkdiff.motion.kinematics import motion_world_positions
+    from walkdiff.motion.representation import features_to_positions
+
+    script = Path(__file__).resolve().parent.parent / "docs" / "onnx_loop.py"
+    tree = ast.parse(script.read_text())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert imported <= {"__future__", "argparse", "json", "math", "pathlib", "numpy", "onnxruntime"}
+
+    def loop(ckpt, kind: str, noise: np.ndarray, *args: str) -> np.ndarray:
+        folder = tmp_path / kind
+        assert (
+            main(["export", "--format", "onnx", "--ckpt", str(ckpt), "--out", str(folder), "--steps", "4"])
+            == 0
+        )
+        np.save(tmp_path / f"{kind}_noise.npy", noise)
+        out = tmp_path / f"{kind}.npz"
+        subprocess.run(
+            [sys.executable, "-I", str(script), str(folder / f"{kind}.json"), "--noise",
+             str(tmp_path / f"{kind}_noise.npy"), "--out", str(out), *args],
+            check=True, capture_output=True,
+        )  # fmt: skip
+        return np.load(out)["positions"]
+
+    def noise_of(model, seed: int) -> np.ndarray:  # what torch draws from the seed, frame by frame
+        generator, frames = torch.Generator().manual_seed(seed), OnnxFrames(model, FEW)
+        return np.stack([frames.noise(1, generator) for _ in range(FRAMES)])
+
+    walker = load_walker(walker_ckpt)
+    steered = controller(walker, "old", seed=2, sampler="ddim", steps=4, turn_rate=math.inf,
+                         heading_assist=0.0, foot_lock=False)  # fmt: skip
+    for _ in range(FRAMES):
+        steered.advance()
+    raw = torch.from_numpy(np.stack([r[0] for _, r, _, _ in steered.kept]))
+    skeleton = walker.skeleton
+    expected = features_to_positions(raw, torch.from_numpy(skeleton.offsets), skeleton.parents).numpy()
+    made = loop(walker_ckpt, "walker", noise_of(walker, 2), "--frames", str(FRAMES), "--style", "old")
+    assert np.linalg.norm(expected[-1, 0] - expected[0, 0]) > 0.5 / walker.profile.metres_per_unit
+    assert np.abs(made - expected).max() <= TOLERANCE * height(expected)
+
+    model = load_model(gesture_ckpt)
+    normal = model.audio_normalizer
+    audio = normal.mean + normal.std * torch.randn(FRAMES, model.spec["audio_dim"])
+    np.save(tmp_path / "audio.npy", audio.numpy())
+    features = DiffMotion.generate(model, audio, torch.Generator().manual_seed(4), 1, sampler=FEW)[0]
+    expected = motion_world_positions(to_motion(model, features.numpy()))
+    made = loop(gesture_ckpt, "gesture", noise_of(model, 4), "--audio", str(tmp_path / "audio.npy"))
+    assert np.abs(made - expected).max() <= TOLERANCE * height(expected)
