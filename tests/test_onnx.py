@@ -257,3 +257,129 @@ def test_the_contract_alone_makes_the_same_frames(gesture_ckpt, walker_ckpt, tmp
     expected = motion_world_positions(to_motion(model, features.numpy()))
     made = loop(gesture_ckpt, "gesture", noise_of(model, 4), "--audio", str(tmp_path / "audio.npy"))
     assert np.abs(made - expected).max() <= TOLERANCE * height(expected)
+
+
+def page_noise(seed: int):
+    """The static page's noise (mulberry32 uniforms, Box-Muller), drawn in Python."""
+    import math
+
+    mask, state = 0xFFFFFFFF, seed & 0xFFFFFFFF
+
+    def uniform() -> float:
+        nonlocal state
+        state = (state + 0x6D2B79F5) & mask
+        t = state
+        t = ((t ^ (t >> 15)) * (t | 1)) & mask
+        t = (t ^ (t + (((t ^ (t >> 7)) * (t | 61)) & mask))) & mask
+        return ((t ^ (t >> 14)) & mask) / 4294967296
+
+    return lambda: math.sqrt(-2 * math.log(1 - uniform())) * math.cos(2 * math.pi * uniform())
+
+
+def test_the_page_walks_in_the_browser_as_python_does(walker_ckpt, tmp_path):
+    """`walkdiff export --format web`: the page loads in headless Chromium, walks, takes a held key as a
+    turn, and its frames are ONNX Runtime's in Python for the same seed and keys (positions within 1e-3 of
+    the body's height)."""
+    import functools
+    import http.server
+    import importlib.util
+    import math
+    import threading
+    import time
+    from pathlib import Path
+
+    import onnxruntime
+
+    from walkdiff.export.static_page import ort_web_folder
+    from walkdiff.preview.browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("no chromium on PATH")
+    try:
+        ort_web_folder()
+    except WalkdiffError as error:
+        pytest.skip(str(error))
+    out = tmp_path / "page"
+    assert (
+        main(["export", "--format", "web", "--ckpt", str(walker_ckpt), "--out", str(out), "--steps", "4"])
+        == 0
+    )
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(out))
+    handler.log_message = lambda *args: None
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    segments = [(30, None), (30, "keyDown"), (30, "keyUp")]
+    try:
+        with Browser(f"http://127.0.0.1:{server.server_port}/index.html?manual&seed=3") as browser:
+            browser.wait_for("window.walkdiffStatic && (walkdiffStatic.ready || walkdiffStatic.error)", timeout=60)
+            ready_s = time.monotonic() - browser.launched
+            assert browser.evaluate("walkdiffStatic.error") is None
+            done = 0
+            for frames, event in segments:
+                if event is not None:  # a real key event, as a person's key press reaches the page
+                    browser.send("Input.dispatchKeyEvent", type=event, key="ArrowLeft", code="ArrowLeft",
+                                 windowsVirtualKeyCode=37)  # fmt: skip
+                done += frames
+                browser.evaluate(
+                    f"(async () => {{ for (let i = 0; i < {frames}; i++) await walkdiffStatic.step(); }})()"
+                )
+                browser.wait_for(f"walkdiffStatic.recorded.length >= {done}", timeout=60, every=0.02)
+            recorded = browser.evaluate(
+                "walkdiffStatic.recorded.map(f => [f.pose, f.positions, f.direction])"
+            )
+            browser.evaluate("walkdiffStatic.bench(60).then(v => walkdiffStatic.speed = v)")
+            speed = browser.wait_for("walkdiffStatic.speed", timeout=60)
+    finally:
+        server.shutdown()
+        server.server_close()
+    print(f"page ready {ready_s:.2f} s after the browser's launch; {speed:.0f} frames/s in the browser")
+
+    spec = importlib.util.spec_from_file_location(
+        "onnx_loop", Path(__file__).parent.parent / "docs" / "onnx_loop.py"
+    )
+    loop = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(loop)
+    terms = json.loads((out / "walker.json").read_text())
+    session = onnxruntime.InferenceSession(str(out / "walker.onnx"), providers=["CPUExecutionProvider"])
+    shapes = {i["name"]: [1 if d == "batch" else d for d in i["shape"]] for i in terms["inputs"]}
+    state = {n: np.zeros(shapes[n], np.float32) for n in ("previous", "h", "c")}
+    control, fps = terms["control"], terms["fps"]
+    styles = list(control["style_speed"])
+    weights = np.eye(len(styles), dtype=np.float32)[:1]
+    times, draw = np.asarray(control["ahead_frames"]) / fps, page_noise(3)
+    rot = slice(*terms["features"]["layout"]["rotations"])
+    x = z = heading = direction = 0.0
+    expected, held = [], False
+    for frames, event in segments:
+        held = {None: held, "keyDown": True, "keyUp": False}[event]
+        for _ in range(frames):
+            direction += math.radians(90) / fps if held else 0.0
+            delta = (direction - heading + math.pi) % (2 * math.pi) - math.pi
+            delta = min(max(delta, -math.pi / 2), math.pi / 2)
+            pace = control["style_speed"][styles[0]] * times
+            points = np.stack([pace * math.sin(delta), pace * math.cos(delta)], -1).reshape(1, -1)
+            noise = np.array([draw() for _ in range(int(np.prod(shapes["noise"])))], np.float32)
+            feeds = {
+                "control": points.astype(np.float32),
+                "style": weights,
+                "noise": noise.reshape(shapes["noise"]),
+            }
+            pose, state["previous"], state["h"], state["c"] = session.run(None, feeds | state)
+            raw = pose[0].astype(np.float64)
+            rotations = loop.sixd_to_matrix(raw[rot].reshape(-1, 6))
+            rotations[0] = loop.yaw(heading) @ rotations[0]
+            positions = loop.forward_kinematics(rotations, np.array([x, raw[2], z]), terms["skeleton"])
+            expected.append((positions, direction))
+            x, z = (
+                x + raw[0] * math.cos(heading) + raw[1] * math.sin(heading),
+                z - raw[0] * math.sin(heading) + raw[1] * math.cos(heading),
+            )
+            heading += raw[3]
+    page = np.array([p for _, p, _ in recorded])
+    python = np.stack([p for p, _ in expected])
+    assert len(page) == len(python) == 90
+    assert np.linalg.norm(page[-1, 0] - page[0, 0]) * terms["skeleton"]["metres_per_unit"] > 0.5  # it walks
+    assert recorded[29][2] == 0 and recorded[-1][2] == pytest.approx(math.radians(90), abs=1e-6)  # the key
+    assert [d for _, _, d in recorded] == pytest.approx([d for _, d in expected], abs=1e-9)
+    assert np.abs(page - python).max() <= 1e-3 * height(python)
+    assert speed > 0

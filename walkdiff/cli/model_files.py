@@ -24,17 +24,20 @@ def add_parsers(sub) -> None:
     )
     p.add_argument(
         "--format",
-        choices=("safetensors", "onnx"),
+        choices=("safetensors", "onnx", "web"),
         default="safetensors",
         help="safetensors (default): the whole model; onnx: one frame of a path walker or gesture model for "
         "ONNX Runtime in a game engine (walker.onnx or gesture.onnx, and its JSON contract: "
-        "docs/game-engines.md)",
+        "docs/game-engines.md); web: a path walker as a page that needs no server (index.html, the graph, "
+        "onnxruntime-web; `make web` fetches it)",
     )
-    p.add_argument("--sampler", choices=SAMPLERS, default="ddim", help="onnx: the sampler inside the frame")
     p.add_argument(
-        "--steps", type=count(1), default=None, help="onnx: DDIM / DPM-Solver++ steps (default 10)"
+        "--sampler", choices=SAMPLERS, default="ddim", help="onnx, web: the sampler inside the frame"
     )
-    p.add_argument("--eta", type=number(0, 1), default=None, help="onnx: DDIM noise (default 1)")
+    p.add_argument(
+        "--steps", type=count(1), default=None, help="onnx, web: DDIM / DPM-Solver++ steps (default 10)"
+    )
+    p.add_argument("--eta", type=number(0, 1), default=None, help="onnx, web: DDIM noise (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier export in --out")
     p.set_defaults(run=run_export)
 
@@ -53,6 +56,15 @@ def add_parsers(sub) -> None:
 
 
 def run_export(args: argparse.Namespace) -> None:
+    if args.format == "web":
+        from walkdiff.export.static_page import write_static_page
+
+        terms = write_static_page(args.ckpt, args.out, args.sampler, args.steps, args.eta, args.overwrite)
+        print(
+            f"wrote {args.out}: index.html, walker.onnx, walker.json and ort/ "
+            f"({terms['sampler']['label']} frame)"
+        )
+        return
     if args.format == "onnx":
         from walkdiff.export.onnx_files import export_onnx
 
@@ -61,7 +73,7 @@ def run_export(args: argparse.Namespace) -> None:
         print(f"wrote {args.out}: {kind}.onnx and {kind}.json ({terms['sampler']['label']} frame)")
         return
     if (args.sampler, args.steps, args.eta) != ("ddim", None, None):
-        raise WalkdiffError("--sampler, --steps and --eta are for --format onnx")
+        raise WalkdiffError("--sampler, --steps and --eta are for --format onnx and web")
     from walkdiff.common.model_files import export_model
 
     card = export_model(args.ckpt, args.out, overwrite=args.overwrite)
