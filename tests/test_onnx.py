@@ -311,7 +311,9 @@ def test_the_page_walks_in_the_browser_as_python_does(walker_ckpt, tmp_path):
     segments = [(30, None), (30, "keyDown"), (30, "keyUp")]
     try:
         with Browser(f"http://127.0.0.1:{server.server_port}/index.html?manual&seed=3") as browser:
-            browser.wait_for("window.walkdiffStatic && (walkdiffStatic.ready || walkdiffStatic.error)", timeout=60)
+            browser.wait_for(
+                "window.walkdiffStatic && (walkdiffStatic.ready || walkdiffStatic.error)", timeout=60
+            )
             ready_s = time.monotonic() - browser.launched
             assert browser.evaluate("walkdiffStatic.error") is None
             done = 0
