@@ -385,3 +385,43 @@ def test_the_page_walks_in_the_browser_as_python_does(walker_ckpt, tmp_path):
     assert [d for _, _, d in recorded] == pytest.approx([d for _, d in expected], abs=1e-9)
     assert np.abs(page - python).max() <= 1e-3 * height(python)
     assert speed > 0
+
+
+def test_bench_play_runs_on_onnx_runtime(walker_ckpt, xia_dir, tmp_path):
+    """`bench play --runtime onnx`: every section measured with ONNX Runtime's frames (the example clips'
+    walks on torch, their guide being torch's)."""
+    import math
+
+    from test_evaluator import tiny_datamodule, tiny_trainer
+
+    from walkdiff.models.evaluator import MotionEvaluator
+
+    root = tmp_path / "evaluator"
+    (root / "xia").mkdir(parents=True)
+    for style in ("neutral", "old"):
+        for content in (1, 2, 3, 5, 6, 7):
+            name = f"{style}_{content:02d}_000.bvh"
+            (root / "xia" / name).symlink_to(xia_dir / name)
+    torch.manual_seed(0)
+    dm = tiny_datamodule(root, root / "cache", contents="walk")
+    trainer = tiny_trainer(max_epochs=1, limit_val_batches=1)
+    trainer.fit(MotionEvaluator(dm.spec, hidden=16, embed_dim=8, blocks=1), dm)
+    trainer.save_checkpoint(root / "evaluator.ckpt")
+    out = tmp_path / "play.json"
+    assert main(["bench", "play", "--runtime", "onnx", "--ckpt", str(walker_ckpt), "--evaluator",
+                 str(root / "evaluator.ckpt"), "--out", str(out), "--seeds", "1", "--switch-seeds", "1",
+                 "--hold", "2", "--steps", "2", "--characters", "1,2", "--frames", "3"]) == 0  # fmt: skip
+    result = json.loads(out.read_text())
+    assert result["runtime"] == "onnx" and result["sampler"] == "ddim-2-eta1"
+    assert set(result["generation"]["by_characters"]) == {"1", "2"}
+    assert result["generation"]["frames_per_s_one_character"] > 0 and result["latency"]["median_ms"] > 0
+    assert result["example_clips"]["ms_per_frame"] > 0
+    assert all(math.isfinite(x) for x in numbers(result))
+
+
+def numbers(tree) -> list:
+    if isinstance(tree, dict):
+        return [x for v in tree.values() for x in numbers(v)]
+    if isinstance(tree, list):
+        return [x for v in tree for x in numbers(v)]
+    return [tree] if isinstance(tree, float | int) and not isinstance(tree, bool) else []
