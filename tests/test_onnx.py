@@ -23,7 +23,6 @@ from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.export.runtime import OnnxFrames, frame_runtime
-from walkdiff.models.diffmotion import DiffMotion
 from walkdiff.models.path_walker import PathWalker
 
 FRAMES = 300
@@ -112,7 +111,7 @@ def test_gesture_frames_match_torch(gesture_ckpt):
     streams = 2
     made = []
     for runner in (model, OnnxFrames(model, FEW)):
-        poses = DiffMotion.generate(runner, audio, torch.Generator().manual_seed(5), streams, sampler=FEW)
+        poses = runner.generate(audio, torch.Generator().manual_seed(5), streams, sampler=FEW)
         made.append(np.stack([joint_positions(model, p) for p in poses.numpy()]))
     assert np.abs(made[0][:, 1:] - made[0][:, :-1]).max() > 1e-3, (
         "the gestures do not move: nothing to compare"
@@ -120,6 +119,21 @@ def test_gesture_frames_match_torch(gesture_ckpt):
     error = np.abs(made[1] - made[0]).max()
     print(f"gestures: largest difference {error:.3g}, body height {height(made[0]):.3g}")
     assert error <= TOLERANCE * height(made[0]), (error, height(made[0]))
+
+
+def test_a_walk_along_a_path_matches_torch(walker_ckpt):
+    from walkdiff.motion.path import Polyline
+
+    model = load_walker(walker_ckpt)
+    path = Polyline.of([[0.0, 0.0], [0.0, 60.0], [60.0, 120.0]])
+    style, speed = torch.tensor([1, 0]), torch.full((2,), 40.0)
+    walks = [
+        runner.generate(path, style, speed, 120, torch.Generator().manual_seed(1), sampler=FEW)[0]
+        for runner in (model, OnnxFrames(model, FEW))
+    ]
+    assert np.abs(walks[1] - walks[0]).max() <= 1e-4 * np.abs(walks[0]).max()
+    with pytest.raises(WalkdiffError, match="sample_frame makes frames with torch"):
+        OnnxFrames(model, FEW).sample_frame(None, None, None)
 
 
 def test_export_writes_graph_and_contract(gesture_ckpt, walker_ckpt, tmp_path):
@@ -253,7 +267,7 @@ def test_the_contract_alone_makes_the_same_frames(gesture_ckpt, walker_ckpt, tmp
     normal = model.audio_normalizer
     audio = normal.mean + normal.std * torch.randn(FRAMES, model.spec["audio_dim"])
     np.save(tmp_path / "audio.npy", audio.numpy())
-    features = DiffMotion.generate(model, audio, torch.Generator().manual_seed(4), 1, sampler=FEW)[0]
+    features = model.generate(audio, torch.Generator().manual_seed(4), 1, sampler=FEW)[0]
     expected = motion_world_positions(to_motion(model, features.numpy()))
     made = loop(gesture_ckpt, "gesture", noise_of(model, 4), "--audio", str(tmp_path / "audio.npy"))
     assert np.abs(made - expected).max() <= TOLERANCE * height(expected)

@@ -108,7 +108,6 @@ def _bench_onnx(out, ckpt, model, few, frames: int, repeats: int, streams: tuple
     """`bench_gesture` on ONNX Runtime: a frame of one stream (the generation loop, noise drawn as torch
     draws it, and the graph's run alone, as an engine calls it), and `streams` streams batched."""
     from walkdiff.export.runtime import OnnxFrames
-    from walkdiff.models.diffmotion import DiffMotion
 
     threads = torch.get_num_threads()
     frames_model = OnnxFrames(model, few, threads)
@@ -116,7 +115,7 @@ def _bench_onnx(out, ckpt, model, few, frames: int, repeats: int, streams: tuple
     audio = torch.randn(frames, model.spec["audio_dim"])
 
     def generate(count: int = 1, length: int = frames) -> None:
-        DiffMotion.generate(frames_model, audio[:length], streams=count, sampler=few)
+        frames_model.generate(audio[:length], streams=count, sampler=few)
 
     state = frames_model.start_streams(1)
     window = np.zeros((1, model.window * model.spec["audio_dim"]), np.float32)

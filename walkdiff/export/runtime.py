@@ -20,6 +20,7 @@ from walkdiff.export.graphs import OUTPUTS, frame_kind
 from walkdiff.export.onnx_files import DEFAULT_SAMPLER, graph_bytes
 
 RUNTIMES = ("torch", "onnx")
+TORCH_FRAMES = ("sample_frame", "sampling_tables", "forward", "sequence_loss", "denoise_sequence")
 
 
 def session(data: bytes | str, threads: int = 1):
@@ -99,7 +100,13 @@ class OnnxFrames:
     def __getattr__(self, name: str):  # spec, profile, normalizer, layout, style_speed, ahead, ...
         if name == "model":
             raise AttributeError(name)
+        if name in TORCH_FRAMES:  # they would make torch's frames, not the graph's
+            raise WalkdiffError(f"--runtime onnx: {name} makes frames with torch; use advance")
         return getattr(self.model, name)
+
+    def generate(self, *args, **kwargs):
+        """The model's own `generate` (gestures for audio, a walk along a path), its frames made here."""
+        return type(self.model).generate(self, *args, **kwargs)
 
     def eval(self) -> OnnxFrames:
         return self
