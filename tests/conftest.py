@@ -64,3 +64,32 @@ def empty_folder(tmp_path, monkeypatch) -> Path:
     folder.mkdir()
     monkeypatch.chdir(folder)
     return folder
+
+
+# Tiny checkpoints on synthetic data (no real data needed), trained once a session: the API tests and
+# the same-outputs test run the commands on them.
+@pytest.fixture(scope="session")
+def styled(tmp_path_factory) -> Path:
+    import synthetic
+    import tiny
+
+    root = tmp_path_factory.mktemp("styled")
+    synthetic.xia_like_folder(root, walk_clips=6, frames=240)
+    return tiny.generator(root, epochs=5)
+
+
+@pytest.fixture(scope="session")
+def walker(tmp_path_factory) -> Path:
+    import synthetic
+    import tiny
+
+    root = tmp_path_factory.mktemp("walker")
+    synthetic.xia_like_folder(root, walk_clips=8, frames=240)
+    return tiny.walker(root)[1]
+
+
+@pytest.fixture(scope="session")
+def gestures(tmp_path_factory) -> tuple[Path, Path]:
+    import tiny
+
+    return tiny.gestures(tmp_path_factory.mktemp("gestures"))

@@ -13,41 +13,27 @@ import numpy as np
 import pygltflib
 import pytest
 import synthetic
-import tiny
 import torch
 
 import walkdiff
-from walkdiff.autoregressive.gesture import GestureGenerator, gesture
-from walkdiff.autoregressive.walk import PathFollower, walk
 from walkdiff.cli.main import main
 from walkdiff.data.speech import read_wav
+from walkdiff.gestures.commands import gesture
+from walkdiff.gestures.generator import GestureGenerator
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.path import Polyline
 from walkdiff.styled import commands
 from walkdiff.styled.pipeline import StyledGenerator
+from walkdiff.walker.commands import walk
+from walkdiff.walker.follow import PathFollower
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = dict(sampler="ddim", steps=2)  # the machinery is the same for every sampler
 
 
-@pytest.fixture(scope="module")
-def styled(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("styled")
-    synthetic.xia_like_folder(root, walk_clips=6, frames=240)
-    return tiny.generator(root, epochs=5)
-
-
-@pytest.fixture(scope="module")
-def walker(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("walker")
-    synthetic.xia_like_folder(root, walk_clips=8, frames=240)
-    return tiny.walker(root)[1]
-
-
-@pytest.fixture(scope="module")
-def gestures(tmp_path_factory) -> tuple[Path, Path]:
-    return tiny.gestures(tmp_path_factory.mktemp("gestures"))
+# The tiny `styled`, `walker` and `gestures` checkpoints are conftest.py's (tests/test_same_outputs.py
+# runs the commands on them too).
 
 
 def test_import_walkdiff_alone_imports_no_torch():
@@ -222,7 +208,7 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
     ckpt, takes = gestures
     model = walkdiff.load(ckpt)
     assert isinstance(model, GestureGenerator) and model.fps == 20.0
-    clips = model.gesture(takes / "b.wav", seed=4, samples=2)
+    clips = model.gesture(takes / "b.wav", seed=4, num=2, smooth=True)
     assert len(clips) == 2 and not list(empty_folder.iterdir()), "nothing written unasked"
     for clip in clips:
         assert clip.num_frames == 161 and clip.fps == pytest.approx(20.0)  # 8 s at 20 fps, both ends
@@ -230,9 +216,9 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
     samples, rate = read_wav(takes / "b.wav")
     stereo = np.stack([samples, samples], axis=1)
     for given in (samples, stereo):
-        again = model.gesture(given, seed=4, samples=2, rate=rate)
+        again = model.gesture(given, seed=4, num=2, smooth=True, rate=rate)
         np.testing.assert_allclose(again[1].positions, clips[1].positions, atol=1e-5)
-    report = gesture(str(ckpt), str(takes / "b.wav"), str(tmp_path / "out"), seed=4, smooth=True, streams=2,
+    report = gesture(str(ckpt), str(takes / "b.wav"), str(tmp_path / "out"), seed=4, smooth=True, num=2,
                      preview_seconds=1.0)  # fmt: skip
     for clip, written in zip(clips, report["files"][:2], strict=True):
         assert clip.to_bvh(tmp_path / Path(written).name).read_text() == Path(written).read_text()
@@ -240,8 +226,11 @@ def test_gesture_of_a_wav_or_its_samples_is_the_gesture_commands_bvh(gestures, t
         model.gesture(takes / "b.wav", rate=16000)
     with pytest.raises(walkdiff.WalkdiffError, match="need their rate in whole Hz > 0, got None"):
         model.gesture(samples)
-    with pytest.raises(walkdiff.WalkdiffError, match="samples must be >= 1, got 0"):
-        model.gesture(samples, rate=rate, samples=0)
+    with pytest.raises(walkdiff.WalkdiffError, match="num must be a whole number >= 1, got 0"):
+        model.gesture(samples, rate=rate, num=0)
+    with pytest.warns(DeprecationWarning, match="samples= is deprecated; use num="):
+        old = model.gesture(samples, rate=rate, samples=2, seed=4, smooth=True)
+    np.testing.assert_allclose(old[1].positions, clips[1].positions, atol=1e-5)
 
 
 def test_a_model_without_arms_cannot_be_retargeted_is_refused(styled, gestures, tmp_path, capsys):
@@ -289,6 +278,7 @@ def documented_files(xia_dir, xia_tiny, walker, gestures) -> dict[str, Path]:
     a real Xia clip), the tiny walker and gesture model, a Xia walk, speech."""
     return {
         "checkpoints/xia_cpu/best.ckpt": xia_tiny["generator"],
+        "checkpoints/xia_style_codes/best.ckpt": xia_tiny["style_codes"],
         "checkpoints/walk_xia/last.ckpt": walker,
         "checkpoints/diffmotion_zeggs/last.ckpt": gestures[0],
         "my_walk.bvh": xia_dir / "neutral_01_000.bvh",
@@ -356,3 +346,53 @@ def test_checkpoints_name_their_model_by_a_path_that_stays_importable(styled, wa
     for class_path in KINDS:
         module, name = class_path.rsplit(".", 1)
         assert isinstance(getattr(importlib.import_module(module), name), type), class_path
+
+
+def test_streams_from_python_make_what_the_whole_input_makes(walker, gestures):
+    """`PathFollower.stream` and `GestureGenerator.stream`, fed piece by piece, hand over every frame once,
+    in order, and end with what `follow` and `gesture` make of the whole input (the stream commands are
+    written on them)."""
+    follower = walkdiff.load(walker)
+    points = [[0, 0], [0, 6], [3, 9], [6, 9]]
+    whole = follower.follow(points, "old", speed=12.0, seed=1)
+    live, lines = follower.stream("old", speed=12.0, seed=1), []
+    for point in points:
+        live.feed([point])
+        live.run()
+        lines += live.frames()
+    live.close()
+    live.run()
+    lines += live.frames()
+    assert [line["frame"] for line in lines] == list(range(whole.num_frames))
+    np.testing.assert_array_equal(live.take().positions, whole.positions)
+    np.testing.assert_allclose([line["root"] for line in lines], whole.positions[:, 0], atol=1e-3)
+    with pytest.raises(walkdiff.WalkdiffError, match="a timeline .* is not for"):
+        follower.stream("neutral@0,old@1", speed=12.0)
+
+    ckpt, takes = gestures
+    model = walkdiff.load(ckpt)
+    samples, rate = read_wav(takes / "b.wav")
+    clips = model.gesture(samples, rate=rate, num=2, seed=4, smooth=True)
+    speech, made = model.stream(rate, num=2, seed=4, smooth=True), []
+    for piece in np.array_split(samples, 7):
+        speech.feed(piece)
+        speech.run()
+        made += speech.frames()
+    speech.close()
+    speech.run()
+    made += speech.frames()
+    assert speech.header()["streams"] == 2 and len(made) == 2 * clips[0].num_frames
+    for k in range(2):
+        assert [line["frame"] for line in made if line["stream"] == k] == list(range(clips[k].num_frames))
+        np.testing.assert_allclose(speech.takes()[k].positions, clips[k].positions, atol=1e-4)
+    with pytest.raises(walkdiff.WalkdiffError, match="--to does not work with a stream|to does not work"):
+        model.stream(rate, to="mixamo")
+
+
+def test_old_spellings_of_the_count_still_work_and_warn(capsys):
+    from walkdiff.cli.main import build_parser
+
+    args = build_parser().parse_args(
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--streams", "3"]
+    )
+    assert args.num == 3 and "--streams is deprecated; use --num" in capsys.readouterr().err

@@ -112,8 +112,8 @@ CASES = {
         ["--speed"],
     ),
     "gesture with no streams": (
-        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--streams", "0"],
-        ["--streams"],
+        ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--num", "0"],
+        ["--num"],
     ),
     "gesture --rate without --stream": (
         ["gesture", "--ckpt", "g", "--audio", "a", "--out", "o", "--rate", "16000"],

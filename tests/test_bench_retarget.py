@@ -23,6 +23,7 @@ SAME = 5  # same-proportion cases
 OTHER = ["legs 0.8x", "legs 1.25x", "arms 1.2x", "longer spine (+2 joints)", "hips 0.6x", "hips 1.6x"]
 OTHER += ["big: 1.5x, hips 1.3x"]
 REAL = [*(f"xia -> {name}" for name in RIGS), "xia -> zeggs", "zeggs -> xia", "xia -> zeggs -> xia"]
+CIRCLING = ["xia -> big", "big -> xia", "xia -> zeggs", "big -> zeggs"]  # issue 46: a 2 m character, circling
 
 
 def numbers(node, path=""):
@@ -49,6 +50,11 @@ def test_the_benchmark_writes_every_section_and_refuses_to_overwrite(xia_dir, ze
     assert len(result["same_proportions"]) == SAME
     assert list(result["other_proportions"]) == OTHER
     assert sorted(result["real_pairs"]) == sorted(REAL)
+    assert list(result["circling"]) == CIRCLING and len(result["circling_clips"]["clips"]) == 2
+    assert "circling round 2 m:" in printed
+    for case in result["circling"].values():
+        for figure in ("legs_with_ik_worst_median_deg", "skate_ratio", "contacts_kept_own"):
+            assert {"value", "target", "pass"} <= set(case[figure]), figure
     assert set(result["contacts_kept_readings"]) == {"contacts_kept_own", "contacts_kept_scaled"}
     for case in [*result["other_proportions"].values(), *result["real_pairs"].values()][:-1]:
         for figure in ("bones_p95_deg", "skate_ratio", "contacts_kept_own", "below_floor", "sides_kept"):
@@ -56,7 +62,7 @@ def test_the_benchmark_writes_every_section_and_refuses_to_overwrite(xia_dir, ze
     for case in result["same_proportions"].values():  # the answer is known: these must hold
         assert case["position_error_max"]["pass"] and case["round_trip_max"]["pass"]
     assert result["speed"]["frames"] == 60 and len(result["speed"]) >= 5
-    sections = ("same_proportions", "other_proportions", "real_pairs", "speed", "checks")
+    sections = ("same_proportions", "other_proportions", "real_pairs", "circling", "speed", "checks")
     for path, value in numbers({s: result[s] for s in sections}):
         assert value is not None and math.isfinite(value), path
     assert result["checks"]["checked"] > 50

@@ -20,14 +20,14 @@ import torch
 from test_evaluator import tiny_datamodule, tiny_trainer
 
 import walkdiff
-from walkdiff.autoregressive.controller import WalkController, command_control, controller
-from walkdiff.autoregressive.keys import KeyControl
-from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
+from walkdiff.live.keys import KeyControl
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.motion.bvh import read_bvh
+from walkdiff.walker.controller import WalkController, command_control, controller
+from walkdiff.walker.follow import load_walker
 
 FAST = dict(sampler="ddim", steps=2)
 TWO = SamplerChoice("ddim", 2, 1.0)
@@ -138,7 +138,7 @@ def test_the_heading_assist_turns_the_root_at_most_its_rate_and_never_when_stand
     """A walker that never turns on its own is turned towards the command by the assist alone: at most
     `heading_assist` degrees a second, closing the error with time constant ASSIST_TIME, not at all with
     the assist off or while standing; the assist is counted."""
-    from walkdiff.autoregressive.controller import ASSIST_TIME
+    from walkdiff.walker.controller import ASSIST_TIME
 
     layout, advance = ideal.layout, ideal.advance
 
@@ -181,8 +181,8 @@ def walked_after(walker: WalkController, command: dict, frames: int) -> np.ndarr
 
 
 def test_the_command_lines_turn_as_the_api_does():
-    from walkdiff.autoregressive.controller import HEADING_ASSIST, TRANSITION, TURN_RATE
     from walkdiff.cli.main import build_parser
+    from walkdiff.walker.controller import HEADING_ASSIST, TRANSITION, TURN_RATE
 
     for command in (["control"], ["play"], ["bench", "play", "--evaluator", "e.ckpt", "--out", "o.json"]):
         args = build_parser().parse_args([*command, "--ckpt", "x.ckpt"])
@@ -520,9 +520,9 @@ def test_the_foot_lock_holds_a_planted_foot_fades_it_after_lift_off_and_lets_go_
     """A foot the walker's contacts plant stays where it touched down while the body walks on (two-bone
     IK reaches it exactly), its offset fades out over BLEND frames once it is off the ground, the other
     leg is left alone, and an anchor the body has walked too far from is dragged along."""
-    from walkdiff.autoregressive.foot_lock import BLEND, MAX_OFFSET, FootLock
     from walkdiff.motion.profile_detection import CONTACT_HEIGHT
     from walkdiff.motion.representation import features_to_positions
+    from walkdiff.walker.foot_lock import BLEND, MAX_OFFSET, FootLock
 
     model = load_walker(ckpt)
     skeleton, spec, layout = model.skeleton, model.profile.contacts, model.layout
@@ -584,8 +584,8 @@ def test_the_foot_lock_lifts_a_free_foot_that_skims_the_floor_and_lets_it_down_g
     """Feet that have landed, then move along the ground faster than a planted foot may without the
     walker's contacts: each is raised until its lower joint is a contact height above where it landed;
     standing still again, the lift falls by LIFT_FADE a frame."""
-    from walkdiff.autoregressive.foot_lock import LIFT_FADE, FootLock
     from walkdiff.motion.representation import features_to_positions
+    from walkdiff.walker.foot_lock import LIFT_FADE, FootLock
 
     model = load_walker(ckpt)
     skeleton, spec, layout = model.skeleton, model.profile.contacts, model.layout

@@ -13,14 +13,14 @@ import pytest
 import torch
 from test_controller import lines_in, script
 
-from walkdiff.autoregressive.controller import controller
-from walkdiff.autoregressive.keys import KeyControl
-from walkdiff.autoregressive.play_page import open_page
-from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.live.keys import KeyControl
+from walkdiff.live.page import open_page
 from walkdiff.models.style_examples import clip_statistics
 from walkdiff.motion.representation import FeatureLayout
+from walkdiff.walker.controller import controller
+from walkdiff.walker.follow import load_walker
 
 FAST = dict(sampler="ddim", steps=2, foot_lock=False)
 

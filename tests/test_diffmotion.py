@@ -11,22 +11,22 @@ import tiny
 import torch
 from PIL import Image
 
-from walkdiff.autoregressive.gesture import (
-    beat_consistency,
-    beat_gain,
-    diversity,
-    l1_distance,
-    load_model,
-    mean_jerk,
-    motion_beats,
-    pck,
-    shift_beats,
-)
 from walkdiff.cli.main import main
 from walkdiff.common import memory
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.speech import SpeechDataModule
 from walkdiff.diffusion import SamplerChoice
+from walkdiff.gestures.evaluate import (
+    beat_consistency,
+    beat_gain,
+    diversity,
+    l1_distance,
+    mean_jerk,
+    motion_beats,
+    pck,
+    shift_beats,
+)
+from walkdiff.gestures.generator import load_model
 from walkdiff.models.diffmotion import ATEncoder, DiffMotion
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.filters import savgol
@@ -219,14 +219,14 @@ def test_gesture_command_writes_bvh_on_the_full_skeleton(trained, tmp_path):
     ckpt, folder = trained
     out = tmp_path / "out"
     assert main(["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "b.wav"), "--out", str(out),
-                 "--smooth", "--streams", "2", "--seed", "4"]) == 0  # fmt: skip
+                 "--smooth", "--num", "2", "--seed", "4"]) == 0  # fmt: skip
     bvhs = sorted(out.glob("b_*.bvh"))
     assert len(bvhs) == 2 and (out / "b.gif").stat().st_size > 0
     motion = read_bvh(bvhs[0])
     assert motion.skeleton.num_joints == 13 and motion.num_frames == 161 and motion.fps == pytest.approx(20)
     # A second run into the same folder refuses to replace the first's files, unless told to.
     again = ["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "b.wav"), "--out", str(out),
-             "--streams", "2", "--seed", "4"]  # fmt: skip
+             "--num", "2", "--seed", "4"]  # fmt: skip
     before = bvhs[0].read_text()
     assert main(again) == 1 and bvhs[0].read_text() == before
     assert main([*again, "--overwrite"]) == 0 and bvhs[0].read_text() != before  # not smoothed this time
@@ -237,7 +237,7 @@ def test_gesture_states_its_preview_and_refuses_audio_too_long_for_memory(
 ):
     ckpt, folder = trained
     args = ["gesture", "--ckpt", str(ckpt), "--audio", str(folder / "b.wav"), "--out", str(tmp_path / "out")]
-    assert main([*args, "--preview-seconds", "2", "--streams", "2"]) == 0
+    assert main([*args, "--preview-seconds", "2", "--num", "2"]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert printed["preview"] == {
         "seconds": 2.0,

@@ -14,8 +14,9 @@ separate commands, `NAME=value` before a command sets its environment. Each comm
 
 Commands of any other program fail, unless SKIPPED names it with the reason. Beside the commands: every
 relative link (and its #anchor) points at an existing file and heading, every repository path written in
-inline code exists, the checkpoint paths the pages sample from are the ones the configs write, and the
-README stays the front door (at most 250 lines).
+inline code exists, the checkpoint paths the pages sample from are the ones the configs write, the
+README stays the front door (at most 250 lines), and every figure it quotes is the one its page or config
+holds (README_FIGURES).
 
 The quick start itself (train the evaluator and the generator from their configs, then sample) runs end to
 end in tests/test_own_data.py::test_scan_then_fit_sample_and_transfer_on_disguised_xia, on configs that
@@ -516,3 +517,60 @@ def test_checkpoint_paths_are_where_the_configs_write_them():
 def test_readme_is_the_front_door():
     lines = (ROOT / "README.md").read_text().splitlines()
     assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines (at most {README_MAX_LINES})"
+
+
+# Each figure the README quotes and the one place it is measured or set: (the README's words, the file,
+# the words there). Both hold the same number, so one changed without the other fails below.
+README_FIGURES = [
+    ("after 7.4 minutes of", "docs/training.md", "the bar comes after about 7.4 minutes"),
+    ("FMD 0.975x its teacher", "docs/sampling.md", "| **student** | **DDIM 1** | **146.2** "
+     "(145.2, 140.7, 152.5) | **0.975** |"),
+    ("at\n15,337 frames/s", "docs/sampling.md", "1 step **15,337 frames/s**"),
+    ("64 gesture streams run in real time", "docs/gestures.md", "**64 measured and ~95 estimated streams in "
+     "real time**"),
+    ("0.15% of the\ndistance walked", "docs/walking.md", "| mean | | **0.15%** (target < 5%)"),
+    ("one character at 127 frames/s", "docs/live-control.md", "| frames/s, one character (DDIM 10, eta 1) | "
+     "127 (7.9 ms a frame"),
+    ("32 at\n  30 frames/s", "docs/live-control.md", "| characters batched at 30 frames/s | 32 ("),
+    ("the evaluator (~4 min)", "conf/evaluator_xia.yaml", "(1,800 batches, about 4 minutes)"),
+    ("then the generator (~15 min)", "conf/xia_cpu.yaml", "max_steps: 1800               # the bound, in "
+     "batches (~15 min on 2 quiet cores)"),
+    ("`conf/xia_cpu.yaml`: 1,800 batches", "conf/xia_cpu.yaml", "max_steps: 1800 "),
+    ("of its 1,800 batches", "conf/xia_cpu.yaml", "max_steps: 1800 "),
+    ("from the first metrics measurement at batch 225", "conf/xia_cpu.yaml", "every_n_steps: 225"),
+    ("every 450 batches", "conf/xia_cpu.yaml", "every_n_steps: 450"),
+    ("Xia's 277 walks", "docs/own-data.md", "(277 clips;"),
+    ("the 572 clips of Xia", "docs/benchmarks.md", "all 572 Xia clips"),
+]  # fmt: skip
+# Numbers in the README's prose that are not measured figures: versions, and the batch of the checkpoint
+# the front GIF was sampled from (a fact of that image, which no page measures).
+README_NOT_FIGURES = {"3.10", "2.13.0", "2.6.6", "1.9.0", "3.17.2", "1,125"}
+FIGURE = re.compile(r"(?<![\w.])(\d{1,3}(?:,\d{3})+|\d+\.\d+(?:\.\d+)?)(?![\w.]*\d)")
+
+
+def figure_numbers(text: str) -> set[str]:
+    """The decimal and thousands-separated numbers of a text (what a measured figure looks like)."""
+    return set(FIGURE.findall(text))
+
+
+def same_number(a: str, b: str) -> bool:
+    return a.replace(",", "") == b.replace(",", "")
+
+
+@pytest.mark.parametrize(("quoted", "source", "held"), README_FIGURES, ids=[f[0] for f in README_FIGURES])
+def test_readme_figures_are_the_ones_their_pages_hold(quoted, source, held):
+    readme = (ROOT / "README.md").read_text()
+    assert quoted in readme, f"README.md no longer says {quoted!r}: update README_FIGURES"
+    assert held in (ROOT / source).read_text(), f"{source} no longer says {held!r}"
+    numbers = re.findall(r"\d[\d,.]*\d|\d", quoted)
+    assert numbers and all(
+        any(same_number(n, m) for m in re.findall(r"\d[\d,.]*\d|\d", held)) for n in numbers
+    ), f"README.md says {quoted!r}; {source} holds {held!r}"
+
+
+def test_every_figure_in_the_readme_has_its_source():
+    """A new figure in the README comes with the page that measures it (README_FIGURES)."""
+    readme = re.sub(r"```.*?```", "", (ROOT / "README.md").read_text(), flags=re.S)
+    listed = set().union(*(figure_numbers(q) | set(re.findall(r"\d+", q)) for q, _, _ in README_FIGURES))
+    loose = sorted(figure_numbers(readme) - listed - README_NOT_FIGURES)
+    assert not loose, f"README.md quotes {loose} with no source in README_FIGURES"

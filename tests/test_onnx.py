@@ -16,14 +16,14 @@ import pytest
 import tiny
 import torch
 
-from walkdiff.autoregressive.controller import controller
-from walkdiff.autoregressive.gesture import joint_positions, load_model
-from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.export.runtime import OnnxFrames, frame_runtime
+from walkdiff.gestures.generator import joint_positions, load_model
 from walkdiff.models.path_walker import PathWalker
+from walkdiff.walker.controller import controller
+from walkdiff.walker.follow import load_walker
 
 FRAMES = 300
 FEW = SamplerChoice("ddim", 4, 1.0)  # the tiny models have 8 and 10 trained steps
@@ -177,7 +177,7 @@ def test_runtime_refuses_what_it_cannot_run(walker_ckpt, xia_dir):
 def test_streams_out_of_step_match_torch(gesture_ckpt):
     """Streams fed at different paces advance a few rows at a time (`advance(rows=...)`): the same
     frames on both runtimes."""
-    from walkdiff.autoregressive.streaming import GestureBatch, GestureStream
+    from walkdiff.gestures.stream import GestureBatch, GestureStream
 
     model = load_model(gesture_ckpt)
     rate = model.spec["sample_rate"]
@@ -222,7 +222,7 @@ def test_the_contract_alone_makes_the_same_frames(gesture_ckpt, walker_ckpt, tmp
     import sys
     from pathlib import Path
 
-    from walkdiff.autoregressive.gesture import to_motion
+    from walkdiff.gestures.generator import to_motion
     from walkdiff.motion.kinematics import motion_world_positions
     from walkdiff.motion.representation import features_to_positions
 

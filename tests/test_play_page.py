@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 import torch
 
-from walkdiff.autoregressive.play_page import open_page
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.live.page import open_page
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.preview.browser import Browser, find_chromium
 from walkdiff.preview.scene import LEFT, RIGHT

@@ -10,7 +10,6 @@ import synthetic
 from PIL import Image
 from test_render import extent, gif_frames, mask
 
-from walkdiff.autoregressive.walk import plot_paths
 from walkdiff.callbacks.samples import SampleClips, real_references
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
@@ -18,6 +17,7 @@ from walkdiff.motion.path import Polyline
 from walkdiff.motion.profile import ContactSpec
 from walkdiff.preview import scene
 from walkdiff.preview.render import Marks, render_gif, render_strobe
+from walkdiff.walker.plots import plot_paths
 
 NAMES = ["Hips", "LeftUpLeg", "LeftFoot", "RightUpLeg", "RightFoot", "Spine", "Head"]
 PARENTS = np.array([-1, 0, 1, 0, 3, 0, 5])

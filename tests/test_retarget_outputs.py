@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 import walkdiff
-from walkdiff.autoregressive.walk import walk
 from walkdiff.cli.main import main
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.rigs import RIGS, SPECS, rig
 from walkdiff.preview.view import load_clips
 from walkdiff.styled import commands
+from walkdiff.walker.commands import walk
 
 FAST = dict(sampler="ddim", steps=2)
 

@@ -13,18 +13,19 @@ import synthetic
 import torch
 from test_speech import RATE, write_take
 
-from walkdiff.autoregressive.gesture import load_model, synthesize
-from walkdiff.autoregressive.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
-from walkdiff.autoregressive.walk import load_walker
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
 from walkdiff.data.speech import LogMelStream, SpeechDataModule, log_mel, read_wav
+from walkdiff.gestures.generator import load_model, synthesize
+from walkdiff.gestures.stream import GestureBatch, GestureStream
 from walkdiff.models.diffmotion import DiffMotion
 from walkdiff.models.path_walker import PathWalker
 from walkdiff.models.style_examples import clip_statistics
 from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, frames_for
+from walkdiff.walker.follow import load_walker
+from walkdiff.walker.stream import WalkBatch, WalkStream
 
 SPEECH = dict(hidden=32, lstm_layers=2, audio_hidden=16, channels=8, residual_layers=4, timesteps=4)
 WALKER = dict(hidden=32, lstm_layers=2, control_hidden=16, channels=8, residual_layers=2, timesteps=8)
@@ -337,11 +338,11 @@ def test_gesture_stream_from_stdin(speech_ckpt, tmp_path, monkeypatch, capsys):
     data = pcm(samples)
     soundfile.write(tmp_path / "same.wav", np.frombuffer(data, "<i2"), RATE, subtype="PCM_16")
     assert main(["gesture", "--ckpt", str(ckpt), "--audio", str(tmp_path / "same.wav"), "--out",
-                 str(tmp_path / "offline"), "--streams", "2", "--preview-seconds", "1"]) == 0  # fmt: skip
+                 str(tmp_path / "offline"), "--num", "2", "--preview-seconds", "1"]) == 0  # fmt: skip
     capsys.readouterr()
     monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(data)))
     assert main(["gesture", "--stream", "--ckpt", str(ckpt), "--audio", "-", "--out", str(tmp_path / "live"),
-                 "--streams", "2"]) == 0  # fmt: skip
+                 "--num", "2"]) == 0  # fmt: skip
     out = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     header, frames, summary = out[0], out[1:-1], out[-1]
     assert header["rate"] == RATE and header["joints"] == ["Spine", "Head"]
@@ -359,8 +360,8 @@ def test_gesture_stream_from_stdin(speech_ckpt, tmp_path, monkeypatch, capsys):
     # Following the WAV file (complete here: it stops growing) gives the same.
     wav = str(tmp_path / "same.wav")
     assert main(["gesture", "--stream", "--idle", "0.05", "--ckpt", str(ckpt), "--audio", wav,
-                 "--out", str(tmp_path / "file"), "--streams", "2"]) == 0  # fmt: skip
-    for k in range(2):  # the same two samples as the offline command's --streams 2
+                 "--out", str(tmp_path / "file"), "--num", "2"]) == 0  # fmt: skip
+    for k in range(2):  # the same two samples as the offline command's --num 2
         a = read_bvh(tmp_path / "offline" / f"same_seed0_{k}.bvh")
         for live in (tmp_path / "live" / f"stdin_seed0_{k}.bvh", tmp_path / "file" / f"same_seed0_{k}.bvh"):
             np.testing.assert_allclose(a.rotations, read_bvh(live).rotations, atol=1e-4)
@@ -580,7 +581,7 @@ def test_ctrl_c_on_a_gesture_stream_writes_the_frames_made(speech_ckpt, tmp_path
     samples = np.random.default_rng(3).normal(0, 0.2, RATE).astype(np.float32)
     monkeypatch.setattr("sys.stdin", ctrl_c_after(pcm(samples)))
     out = tmp_path / "out"
-    args = ["gesture", "--stream", "--ckpt", str(speech_ckpt[0]), "--audio", "-", "--streams", "2"]
+    args = ["gesture", "--stream", "--ckpt", str(speech_ckpt[0]), "--audio", "-", "--num", "2"]
     assert main([*args, "--out", str(out)]) == 130
     frames, summary, err = interrupted_output(capsys)
     files = [out / "stdin_seed0_0.bvh", out / "stdin_seed0_1.bvh"]

@@ -520,3 +520,52 @@ def test_bench_train_times_a_config_in_its_own_precision(tiny_root, tmp_path):
     config.write_text(text.replace("  devices: 1\n", "  devices: 1\n  precision: 16-mixed\n"))
     with pytest.raises(WalkdiffError, match="trainer.precision"):
         bench_train(str(tmp_path / "other.json"), str(config), batches=2, warmup=1, repeats=1)
+
+
+def test_bench_train_times_a_recipe_beside_its_config_in_one_run(tiny_root, tmp_path):
+    """`bench train -- FIT_OPTIONS`: both timed, interleaved; the overrides reach the model and data; a
+    trainer option is ignored and anything else named."""
+    from walkdiff.bench.train import _config_model_and_data, bench_train_recipe
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(probes.tiny_fit_config(tiny_root, "recipe", epochs=1, batches=4, callbacks=[]))
+    args = ["--model.min_snr_gamma", "5", "--data.stride=3", "--trainer.max_steps", "9"]
+    model, dm = _config_model_and_data(str(config), args)
+    assert model.hparams.min_snr_gamma == 5 and dm.hparams.stride == 3
+    result = bench_train_recipe(str(tmp_path / "recipe.json"), str(config), args, batches=2, warmup=1, repeats=2)
+    assert [len(v) for v in result["seconds_per_batch"].values()] == [2, 2]
+    medians = result["seconds_per_batch_median"]
+    assert result["recipe_over_config"] == pytest.approx(medians["recipe"] / medians["config"], rel=0.01)
+    assert json.loads((tmp_path / "recipe.json").read_text())["fit_args"] == args
+    for bad in (["--model.min_snr_gamma"], ["--optimizer.lr", "1"], ["model.lr", "1"]):
+        with pytest.raises(WalkdiffError, match="fit option"):
+            _config_model_and_data(str(config), bad)
+
+
+def test_the_foot_velocity_loss_costs_feet_moving_unlike_real_ones_on_every_frame(tiny_root):
+    """A foot velocity of one contact speed threshold more than the real one costs 1 (times abar_t) on
+    every frame, planted or swinging, whatever the skeleton's units; the real motion costs 0."""
+    dm = datamodule(tiny_root)
+    dm.setup("fit")
+    model = StyledMotionDiffusion(dm.spec, **TINY, lambda_foot_velocity=1.0)
+    model.normalizer.load_state_dict(dm.normalizer.state_dict())
+    model.profile = dm.profile
+    batch = next(iter(dm.train_dataloader()))
+    raw = model.normalizer.denormalize(batch["features"])
+    t = torch.zeros(len(raw), dtype=torch.long)
+    abar = float(model.diffusion.alphas_cumprod[0])
+
+    def losses(x0_hat):
+        return model.generator_losses(batch, x0_hat, x0_hat, x0_hat, t, adversarial=False)
+
+    assert losses(batch["features"])["foot_velocity"] == 0
+    # The whole body rising at the threshold speed: every foot's vertical speed is off by 1 threshold.
+    rising = raw.clone()
+    frames = torch.arange(raw.shape[1], dtype=raw.dtype)
+    step = model.contact_spec.speed_threshold / model.spec["fps"]
+    rising[..., model.layout.root_height] += (frames * step)[None, :, None]
+    x0_hat = model.normalizer.normalize(rising).requires_grad_(True)
+    moved = losses(x0_hat)
+    assert moved["foot_velocity"].item() == pytest.approx(abar, rel=1e-3)
+    moved["foot_velocity"].backward()
+    assert x0_hat.grad[..., model.layout.root_height].abs().sum() > 0

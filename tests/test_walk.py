@@ -14,7 +14,6 @@ import tiny
 import torch
 from PIL import Image
 
-from walkdiff.autoregressive.walk import load_walker, path_error
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.xia import list_clips, load
@@ -24,6 +23,7 @@ from walkdiff.motion.bvh import read_bvh
 from walkdiff.motion.path import Polyline, read_path
 from walkdiff.motion.representation import FeatureLayout, encode, root_trajectory, yaw_matrix
 from walkdiff.motion.resample import resample
+from walkdiff.walker.follow import load_walker, path_error
 
 
 @pytest.fixture(autouse=True)

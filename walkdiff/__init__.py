@@ -12,8 +12,8 @@ __version__ = "0.1.0"
 _API = {
     "load": "walkdiff.api",
     "StyledGenerator": "walkdiff.styled.pipeline",
-    "PathFollower": "walkdiff.autoregressive.walk",
-    "GestureGenerator": "walkdiff.autoregressive.gesture",
+    "PathFollower": "walkdiff.walker.follow",
+    "GestureGenerator": "walkdiff.gestures.generator",
     "Generated": "walkdiff.models.pipeline",
     "Style": "walkdiff.models.style_spec",
     "SamplerChoice": "walkdiff.diffusion.samplers",

@@ -2,19 +2,20 @@
 
 As with a diffusers pipeline, one object per kind of model holds the trained network, and its methods are
 what the commands generate, without the files: a StyledGenerator (`sample`, `transfer`) for a
-StyledMotionDiffusion, a PathFollower (`follow`) for a PathWalker, a GestureGenerator (`gesture`) for a
-DiffMotion. The manual is docs/api.md.
+StyledMotionDiffusion, a PathFollower (`follow`, `stream`, `controller`) for a PathWalker, a
+GestureGenerator (`gesture`, `stream`) for a DiffMotion. Every generating command, streams and live
+control included, is written on these. The manual is docs/api.md.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from walkdiff.autoregressive.gesture import GestureGenerator
-from walkdiff.autoregressive.walk import PathFollower
 from walkdiff.common.checkpoints import KINDS, checkpoint_class
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.gestures.generator import GestureGenerator
 from walkdiff.styled.pipeline import StyledGenerator
+from walkdiff.walker.follow import PathFollower
 
 # The object for each model class a checkpoint can be saved from (common/checkpoints.py KINDS).
 PIPELINES = {

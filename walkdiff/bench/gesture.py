@@ -19,7 +19,7 @@ def gesture_model(ckpt: str | None):
     from walkdiff.models.diffmotion import DiffMotion
 
     if ckpt is not None:
-        from walkdiff.autoregressive.gesture import load_model
+        from walkdiff.gestures.generator import load_model
 
         return load_model(ckpt).eval()
     spec = dict(

@@ -120,8 +120,8 @@ def bench_memory(
 
 def _walk_memory(ckpt: str, seconds: int, tmp: Path, env: dict) -> dict:
     """Peak memory of `walkdiff walk` along a straight path walked in `seconds` at 1.2 m/s."""
-    from walkdiff.autoregressive.walk import load_walker
     from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
+    from walkdiff.walker.follow import load_walker
 
     model = load_walker(ckpt)
     path = tmp / f"straight_{seconds}s.json"
@@ -153,9 +153,9 @@ def _gesture_memory(ckpt: str, audio: str, seconds: int, tmp: Path, env: dict) -
     """Peak memory of `walkdiff gesture` on `audio` repeated (or cut) to `seconds`."""
     import soundfile
 
-    from walkdiff.autoregressive.gesture import load_model
     from walkdiff.common.memory import GESTURE_BYTES_PER_FRAME, check_frames
     from walkdiff.data.speech import read_wav
+    from walkdiff.gestures.generator import load_model
 
     samples, rate = read_wav(audio)
     long = np.resize(samples, seconds * rate)  # repeated end to end

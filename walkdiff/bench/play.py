@@ -53,20 +53,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.controller import (
-    HEADING_ASSIST,
-    TRANSITION,
-    TURN_RATE,
-    WalkController,
-    controller,
-)
-from walkdiff.autoregressive.walk import load_walker
 from walkdiff.bench.measure import machine, report
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.evaluation.clips import Clip, ClipScorer
 from walkdiff.motion.body_features import resample_positions
 from walkdiff.motion.representation import features_to_positions
 from walkdiff.styled.generation import seam_tails
+from walkdiff.walker.controller import (
+    HEADING_ASSIST,
+    TRANSITION,
+    TURN_RATE,
+    WalkController,
+    controller,
+)
+from walkdiff.walker.follow import load_walker
 
 HEADING_CHANGE = 2.0  # degrees: a visible turn
 SPEED_CHANGE = 0.10  # a visible change of speed, relative
@@ -449,7 +449,7 @@ PAGE_LAUNCHES = 3  # browser launches on the page: Chromium's own start varies b
 def page_open(ckpt, sampler: str, steps: int | None, eta: float | None, launches: int = PAGE_LAUNCHES):
     """`walkdiff play`'s page served on a free port, opened in headless Chromium `launches` times: the
     median seconds from a browser's launch to the walker drawn, and each (see the module docstring)."""
-    from walkdiff.autoregressive.play_page import open_page
+    from walkdiff.live.page import open_page
     from walkdiff.preview.browser import Browser, chromium_version, find_chromium
 
     if find_chromium() is None:

@@ -1,6 +1,6 @@
 """`walkdiff bench retarget`: retargeting measured against the numbers of issue 29.
 
-Three kinds of pairs, each over the same real clips (Xia clips of different styles and contents):
+Four kinds of pairs, each over the same real clips (Xia clips of different styles and contents):
 
 - same proportions (`walkdiff.bench.rig_variants`): the clip's own rig with another rest pose, random
   local frames, another rotation order, up axis and units. The answer is known: world joint positions
@@ -11,6 +11,13 @@ Three kinds of pairs, each over the same real clips (Xia clips of different styl
   feet turned within 10 deg, the root's path the source's times the leg ratio within 1%, feet planted.
 - real pairs: Xia onto ZEGGS (its first frame as the reference) and back, ZEGGS onto Xia, Xia onto each
   built-in rig.
+- circling (issue 46): the clips that travel (walks and runs) walked round a 2 m circle
+  (`walkdiff.bench.circle_walk`), onto a big character of another hip-width-to-leg ratio (the built-in
+  mixamo rig 2 m tall, hips 1.4x) and onto ZEGGS; and the big character's clip at 60 fps as the source,
+  onto Xia and ZEGGS.
+
+Every pair's legs with the foot IK on: the worst leg bone within 3 deg of the source's at its median
+(issue 46: the feet may bend a leg away only as far as a contact needs).
 
 Bone directions are read pooled over the bones (as tests/test_retarget.py does) and per bone (the worst
 bone's own median and p95). Feet on every pair: the project's skate ratio as its evaluator measures it
@@ -32,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from walkdiff.bench.circle_walk import circled, travels
 from walkdiff.bench.measure import machine, median_seconds
 from walkdiff.bench.retarget_report import checks, summary
 from walkdiff.bench.rig_variants import (
@@ -53,6 +61,7 @@ from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.humanoid import SIDES, humanoid_map
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
+from walkdiff.motion.resample import resample
 from walkdiff.motion.rest_alignment import forward_kinematics_np
 from walkdiff.motion.retarget import Retargeter
 from walkdiff.motion.rigs import RIGS, rig
@@ -427,6 +436,25 @@ def _pair(source: Motion, target, pools: dict, name: str) -> Motion:
     return pools.setdefault(name, PairPool()).add(source, Retargeter(source, target), free)
 
 
+CIRCLE_RADIUS_M = 2.0
+BIG_HEIGHT_M, BIG_HIPS, BIG_FPS = 2.0, 1.4, 60.0
+BIG = f"big = mixamo {BIG_HEIGHT_M:g} m, hips {BIG_HIPS:g}x, at {BIG_FPS:g} fps as a source"
+
+
+def _run_circling(clip: Motion, window: Motion | None, sign: float, pools: dict) -> None:
+    """The clip walking round a circle (`circle_walk.circled`), onto a big character of another
+    hip-width-to-leg ratio (BIG: the built-in mixamo rig, 2 m tall, its hips wider) and onto ZEGGS;
+    and the big character's clip, at 60 fps, as the source: onto Xia and ZEGGS (issue 46's 2 m Mixamo
+    walking in a circle bent Xia's thighs 9.7 deg away from its own)."""
+    circle = circled(clip, CIRCLE_RADIUS_M, sign)
+    big = hips(rig("mixamo", BIG_HEIGHT_M).skeleton, BIG_HIPS)
+    foreign = resample(_pair(circle, big, pools, "xia -> big"), BIG_FPS)
+    _pair(foreign, clip.slice(0, 1), pools, "big -> xia")
+    if window is not None:
+        _pair(circle, window.slice(0, 1), pools, "xia -> zeggs")
+        _pair(foreign, window.slice(0, 1), pools, "big -> zeggs")
+
+
 def _run_real(clip: Motion, window: Motion | None, height: float, pools: dict, trips: list) -> None:
     for name in RIGS:
         _pair(clip, rig(name), pools, f"xia -> {name}")
@@ -512,13 +540,16 @@ def bench_retarget(
     windows = zeggs_windows(zeggs[1], len(clips), frames) if zeggs else [None] * len(clips)
     first = next(iter(clips.values()))
     speed = _speed(first, zeggs and zeggs[1], repeats)  # first: the machine is at its quietest
-    same, other, real, trips, heights = {}, {}, {}, [], {}
+    same, other, real, circling, trips, heights, circling_clips = {}, {}, {}, {}, [], {}, []
     with tempfile.TemporaryDirectory() as folder:
         for seed, (name, clip) in enumerate(progress(clips.items(), desc="retarget clips", unit="clip")):
             height = heights[name] = SkeletonProfile.detect(clip).body_height
             _run_same(clip, seed, height, same, Path(folder))
             _run_other(clip, other)
             _run_real(clip, windows[seed], height, real, trips)
+            if travels(clip):  # walks and runs go round a circle, one way then the other
+                _run_circling(clip, windows[seed], (-1.0) ** len(circling_clips), circling)
+                circling_clips.append(name)
     real_figures = {name: pool.figures() for name, pool in real.items()}
     if trips:
         trip = np.concatenate(trips, axis=None)
@@ -544,6 +575,14 @@ def bench_retarget(
         "same_proportions": {name: pool.figures() for name, pool in same.items()},
         "other_proportions": {name: pool.figures() for name, pool in other.items()},
         "real_pairs": real_figures,
+        "circling": {name: pool.figures() for name, pool in circling.items()},
+        "circling_clips": {
+            "clips": circling_clips,
+            "radius_m": CIRCLE_RADIUS_M,
+            "big": BIG,
+            "note": "the clips that travel (walks and runs: circle_walk.travels), each walked round a "
+            "circle of this radius, turning left and right in turn (circle_walk.circled)",
+        },
         "speed": {"clip": next(iter(clips)), "frames": first.num_frames, **speed},
         "machine": machine(),
     }

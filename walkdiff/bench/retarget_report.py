@@ -16,8 +16,8 @@ def checks(result: dict) -> dict:
             for key, value in node.items():
                 walk(value, [*path, key])
 
-    for section in ("same_proportions", "other_proportions", "real_pairs", "speed"):
-        walk(result[section], [section])
+    for section in ("same_proportions", "other_proportions", "real_pairs", "circling", "speed"):
+        walk(result.get(section, {}), [section])
     return {
         "checked": len(found),
         "passed": sum(ok for _, ok in found),
@@ -43,7 +43,8 @@ def _pair_row(name: str, f: dict) -> str:
     return (
         f"  {name:24s} {two('bones_median_deg', 'bones_p95_deg'):>10s} "
         f"{two('bones_worst_median_deg', 'bones_worst_p95_deg'):>11s} "
-        f"{two('legs_free_median_deg', 'legs_free_p95_deg'):>10s} {turn:>5s} "
+        f"{two('legs_free_median_deg', 'legs_free_p95_deg'):>10s} "
+        f"{_show(f['legs_with_ik_worst_median_deg']):>6s} {turn:>5s} "
         f"{_show(f['path_length_error'], '{:.1e}'):>7s} "
         f"{two('skate_ratio', 'skate_ratio_source', '{:.3f}', ' (') + ')':>14s} "
         f"{two('contacts_kept_own', 'contacts_kept_scaled', '{:.3f}'):>16s} "
@@ -66,12 +67,20 @@ def summary(result: dict) -> list[str]:
         lines.append(f"  {name:56s} {pos:>13s} {back:>12s}")
     lines.append(
         f"{'pair (degrees: median/p95)':26s} {'bones':>10s} {'worst bone':>11s} {'legs off':>10s} "
-        f"{'h+f':>5s} {'path':>7s} "
+        f"{'leg IK':>6s} {'h+f':>5s} {'path':>7s} "
         f"{'skate (src)':>14s} {'contacts own/sc':>16s} {'below':>7s} {'sides':>5s}"
     )
     for name, f in [*result["other_proportions"].items(), *result["real_pairs"].items()]:
         if "bones_median_deg" in f:
             lines.append(_pair_row(name, f))
+    circling = result.get("circling_clips")
+    if circling:
+        lines.append(
+            f"circling round {circling['radius_m']:g} m: "
+            f"{', '.join(circling['clips']) or 'no clip travels'}; {circling['big']}"
+        )
+    for name, f in result.get("circling", {}).items():
+        lines.append(_pair_row(name, f))
     trip = result["real_pairs"].get("xia -> zeggs -> xia")
     if trip:
         lines.append(

@@ -25,7 +25,7 @@ def _stream_walker(ckpt: str | None, speed: float):
     from walkdiff.models.path_walker import PathWalker
 
     if ckpt is not None:
-        from walkdiff.autoregressive.walk import load_walker
+        from walkdiff.walker.follow import load_walker
 
         return load_walker(ckpt)
     spec = dict(
@@ -155,8 +155,9 @@ def _bench_stream(
     out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, sampler, runtime
 ) -> dict:
     torch.set_num_threads(1)
-    from walkdiff.autoregressive.streaming import GestureBatch, GestureStream, WalkBatch, WalkStream
     from walkdiff.export.runtime import frame_runtime
+    from walkdiff.gestures.stream import GestureBatch, GestureStream
+    from walkdiff.walker.stream import WalkBatch, WalkStream
 
     model = frame_runtime(gesture_model(ckpt).eval(), runtime, sampler)  # the checkpoint, or ZEGGS-sized
     rate = model.spec.get("sample_rate") or rate

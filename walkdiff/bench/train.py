@@ -1,5 +1,6 @@
 """`walkdiff bench train`: training windows/s of a config under Lightning beside the same step in a plain
-PyTorch loop."""
+PyTorch loop, and with `walkdiff fit` overrides, seconds per batch of the overridden config beside the
+config as it is (a recipe's cost against today's, both timed in one run)."""
 
 from __future__ import annotations
 
@@ -14,14 +15,40 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.progress import progress
 
 
-def _config_model_and_data(config: str):
-    """The model and data module exactly as `walkdiff fit --config CONFIG` would build them."""
+def overridden(cfg: dict, fit_args: list[str] | None) -> dict:
+    """The config with `walkdiff fit` overrides (`--model.x V`, `--data.y=V`) on its model and data
+    init_args; trainer options do not change a batch and are left out."""
+    import yaml
+
+    cfg = {k: dict(v) if isinstance(v, dict) else v for k, v in cfg.items()}
+    args = list(fit_args or [])
+    while args:
+        option = args.pop(0)
+        if not option.startswith("--") or option == "--":
+            raise WalkdiffError(f"fit option: expected --section.key VALUE, got {option!r}")
+        key, has_value, value = option[2:].partition("=")
+        if not has_value:
+            if not args:
+                raise WalkdiffError(f"fit option {option}: expected a value after it")
+            value = args.pop(0)
+        section, _, name = key.partition(".")
+        if section == "trainer":
+            continue
+        if section not in ("model", "data") or not name or "." in name:
+            raise WalkdiffError(f"fit option {option}: bench train times --model.KEY and --data.KEY options")
+        cfg[section] = dict(cfg[section])
+        cfg[section]["init_args"] = dict(cfg[section]["init_args"]) | {name: yaml.safe_load(value)}
+    return cfg
+
+
+def _config_model_and_data(config: str, fit_args: list[str] | None = None):
+    """The model and data module exactly as `walkdiff fit --config CONFIG [FIT_ARGS]` would build them."""
     from omegaconf import OmegaConf
 
     from walkdiff.data.datamodule import MotionDataModule
     from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
-    cfg = OmegaConf.to_container(OmegaConf.load(config), resolve=True)
+    cfg = overridden(OmegaConf.to_container(OmegaConf.load(config), resolve=True), fit_args)
     dm = MotionDataModule(**cfg["data"]["init_args"])
     model = StyledMotionDiffusion(dm.spec, **cfg["model"]["init_args"])
     return model, dm
@@ -57,11 +84,13 @@ class _BatchClock:
         self.start = self.end = self.cpu_start = self.cpu_end = 0.0
 
 
-def _lightning_seconds(config: str, batches: int, warmup: int) -> tuple[float, float]:
+def _lightning_seconds(
+    config: str, batches: int, warmup: int, fit_args: list[str] | None = None
+) -> tuple[float, float]:
     """(wall seconds, process CPU seconds) of `batches` training batches under Lightning."""
     import lightning as L
 
-    model, dm = _config_model_and_data(config)
+    model, dm = _config_model_and_data(config, fit_args)
     model.hparams.adv_warmup_batches = 0  # time the full step: D + G with the adversarial term
     clock = _BatchClock(warmup)
     trainer = L.Trainer(
@@ -144,6 +173,38 @@ def bench_train(
         # CPU seconds of all torch threads: on a busy machine near what the batches would take on a
         # quiet one with one thread, where wall time grows with the load.
         "cpu_seconds_per_batch_median": round(statistics.median(lightning_cpu_s) / batches, 3),
+        "load_average": [round(x, 2) for x in os.getloadavg()],
+        "machine": machine(),
+    }
+    report(out, result)
+    return result
+
+
+def bench_train_recipe(
+    out: str, config: str, fit_args: list[str], batches: int = 30, warmup: int = 5, repeats: int = 3
+):
+    """Seconds per training batch of the config with `fit_args` beside the config as it is, interleaved
+    repeats so that both see the same machine load; the ratio of their medians."""
+    if not fit_args:
+        raise WalkdiffError("bench train: a recipe to time needs fit options after --")
+    times: dict[str, list[float]] = {"config": [], "recipe": []}
+    cpu: dict[str, list[float]] = {"config": [], "recipe": []}
+    for _ in progress(range(repeats), desc="bench train (config, recipe)", unit="repeat"):
+        for name, args in (("config", None), ("recipe", fit_args)):
+            wall, process = _lightning_seconds(config, batches, warmup, args)
+            times[name].append(wall / batches)
+            cpu[name].append(process / batches)
+    median = {name: statistics.median(values) for name, values in times.items()}
+    result = {
+        "benchmark": "train_recipe",
+        "config": config,
+        "fit_args": list(fit_args),
+        "batches_timed": batches,
+        "repeats": repeats,
+        "seconds_per_batch": {name: [round(x, 4) for x in values] for name, values in times.items()},
+        "seconds_per_batch_median": {name: round(value, 4) for name, value in median.items()},
+        "cpu_seconds_per_batch_median": {name: round(statistics.median(v), 4) for name, v in cpu.items()},
+        "recipe_over_config": round(median["recipe"] / median["config"], 3),
         "load_average": [round(x, 2) for x in os.getloadavg()],
         "machine": machine(),
     }

@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.walk import load_walker, path_error, plot_paths, to_motion, walk_paths
 from walkdiff.common.files import write_json
 from walkdiff.evaluation.scorer import load_evaluator
 from walkdiff.motion.path import Polyline, frames_for
+from walkdiff.walker.follow import load_walker, path_error, to_motion, walk_paths
+from walkdiff.walker.plots import plot_paths
 
 
 def benchmark_paths(scale: float) -> dict[str, Polyline]:

@@ -20,10 +20,11 @@ import numpy as np
 import torch
 from PIL import Image
 
-from walkdiff.autoregressive import gesture
 from walkdiff.callbacks.clock import Due, step_folder
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.tracking import log_file
+from walkdiff.gestures.commands import write_clips
+from walkdiff.gestures.generator import synthesize
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import decode
@@ -218,9 +219,10 @@ class WalkSamples(L.Callback):
     def write(
         self, pl_module, logger, artifact_dir: str, folder: Path | None = None, step: int = 0
     ) -> list[Path]:
-        from walkdiff.autoregressive.walk import path_error, plot_paths, render_walk, to_motion, walk_paths
         from walkdiff.motion.path import Polyline
         from walkdiff.motion.take import Take
+        from walkdiff.walker.follow import path_error, to_motion, walk_paths
+        from walkdiff.walker.plots import plot_paths, render_walk
 
         styles = list(pl_module.spec["styles"])
         walked = [s for s, speed in zip(styles, pl_module.style_speed.tolist(), strict=True) if speed > 0]
@@ -284,10 +286,10 @@ class GestureSamples(L.Callback):
         end = min(end, begin + round(self.seconds * pl_module.spec["fps"]))
         was_training = pl_module.training
         pl_module.eval()
-        clip = gesture.synthesize(pl_module, take.audio[begin:end], 1, self.seed, smooth=True)[0]
+        clip = synthesize(pl_module, take.audio[begin:end], 1, self.seed, smooth=True)[0]
         pl_module.train(was_training)
         with tempfile.TemporaryDirectory() as tmp:
-            files, _ = gesture.write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
+            files, _ = write_clips(Path(folder or tmp), take.name, pl_module, [clip], ["smoothed"])
             for path in files:
                 log_file(logger, path, artifact_dir)
             return files if folder else []

@@ -119,7 +119,8 @@ def add_train(bench) -> None:
     )
     b.add_argument(
         "fit_args", nargs="*", metavar="-- FIT_OPTION",
-        help="with --to-bar, after --: `walkdiff fit` overrides of the config (-- --model.lr 1e-3)",
+        help="after --: `walkdiff fit` overrides of the config (-- --model.lr 1e-3); without --to-bar, "
+        "seconds per batch with them beside the config as it is, timed in one run",
     )  # fmt: skip
     b.set_defaults(run=run_train)
 
@@ -144,7 +145,9 @@ def run_train(args: argparse.Namespace) -> None:
 
         bench_time_to_bar(args.out, args.config, args.evaluator, args.repeats, args.fit_args)
     elif args.fit_args:
-        raise WalkdiffError(f"bench train takes fit options only with --to-bar: {' '.join(args.fit_args)}")
+        from walkdiff.bench.train import bench_train_recipe
+
+        bench_train_recipe(args.out, args.config, args.fit_args, args.batches)
     else:
         from walkdiff.bench.train import bench_train
 

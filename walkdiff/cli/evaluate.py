@@ -100,7 +100,7 @@ def run_evaluate(args: argparse.Namespace) -> None:
     from walkdiff.evaluation.evaluate import evaluate
 
     if args.ckpt and checkpoint_class(args.ckpt) == "walkdiff.models.diffmotion.DiffMotion":
-        from walkdiff.autoregressive.gesture import evaluate_gesture
+        from walkdiff.gestures.evaluate import evaluate_gesture
 
         if args.quick:
             raise WalkdiffError("--quick is the walking protocol's; for gestures give fewer --repeats")

@@ -87,7 +87,7 @@ def add_play(sub) -> None:
 
 
 def run_control(args: argparse.Namespace) -> None:
-    from walkdiff.autoregressive.play import control
+    from walkdiff.live.play import control
 
     control(**keyword_options(args))  # prints its own JSON lines
 
@@ -97,7 +97,7 @@ def run_play(args: argparse.Namespace) -> None:
 
     options = keyword_options(args)
     if options["script"] is None:
-        from walkdiff.autoregressive.play_page import serve_page
+        from walkdiff.live.page import serve_page
 
         if options.pop("to") is not None or options.pop("to_map") is not None:
             raise WalkdiffError(
@@ -107,7 +107,7 @@ def run_play(args: argparse.Namespace) -> None:
         del options["script"]
         summary = serve_page(**options)
     else:
-        from walkdiff.autoregressive.play import play
+        from walkdiff.live.play import play
 
         del options["host"], options["port"]
         summary = play(**options)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 from walkdiff.common.arguments import count, number
+from walkdiff.common.errors import WalkdiffError
 
 # diffusion.SAMPLERS, repeated so that building the parser imports no torch (a test keeps them equal).
 SAMPLERS = ("ddpm", "ddim", "dpmpp")
@@ -107,16 +109,42 @@ def rig_options(p: argparse.ArgumentParser, required: bool = False) -> None:
         f"aligned on) or a built-in rig ({', '.join(RIG_NAMES)}); see docs/motion.md#retargeting",
     )  # fmt: skip
     p.add_argument(
-        "--to-map", "--target-map", default=None, action=ToMap,
+        "--to-map", "--target-map", default=None, action=Renamed,
         help="with --to: YAML/JSON of humanoid map overrides (role: joint name)",
     )  # fmt: skip
 
 
-class ToMap(argparse.Action):
-    """--to-map; said as --target-map (its name on `retarget` before the options were one group), it
-    warns and works."""
+class Renamed(argparse.Action):
+    """An option with an old spelling (its second name), which warns and works."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        if option_string == "--target-map":
-            print("walkdiff: warning: --target-map is deprecated; use --to-map", file=sys.stderr)
+        new, old = self.option_strings[:2]
+        if option_string == old:
+            print(f"walkdiff: warning: {old} is deprecated; use {new}", file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+# The options of a command with --stream that only the stream takes, and their defaults.
+STREAM_ONLY = {"rate": None, "seconds": None, "idle": 2.0}
+
+
+def whole_or_stream(args: argparse.Namespace, whole, stream, whole_only: tuple[str, ...]) -> None:
+    """A command with --stream (`walk`, `gesture`): with it, `stream(**options)`, which prints its own JSON
+    lines, without the options only the whole input's function takes (`whole_only`: previews, plots) and
+    refusing --to (the live poses are on the model's skeleton: retarget what it writes); without it,
+    `whole(**options)` with its result printed, refusing the options only a stream takes."""
+    from walkdiff.common.files import strict_json
+
+    options = keyword_options(args)
+    if options.pop("stream"):
+        if options.pop("to") is not None or options.pop("to_map") is not None:
+            raise WalkdiffError(
+                "--to does not work with --stream (the live poses are on the model's skeleton); retarget "
+                "the BVH the stream writes with `walkdiff retarget BVH --to RIG --out OUT`"
+            )
+        stream(**{k: v for k, v in options.items() if k not in whole_only})
+        return
+    for name in set(STREAM_ONLY) & set(options):
+        if options.pop(name) != STREAM_ONLY[name]:
+            raise WalkdiffError(f"--{name} needs --stream")
+    print(json.dumps(strict_json(whole(**options)), indent=2))

@@ -58,6 +58,11 @@ class BodyTerms:
         (..., F-1, feet) is 1: MDM's foot-contact term before its mean."""
         return velocity_hat[..., self.feet, :][..., [0, 2]].pow(2).sum(dim=-1) * planted
 
+    def foot_velocity_error(self, velocity_hat: torch.Tensor, velocity: torch.Tensor) -> torch.Tensor:
+        """Predicted minus real velocities of the feet (..., F-1, feet, 3), in contact speed thresholds: all
+        frames, not only planted ones, so a foot that reaches the ground still fast is penalised as well."""
+        return velocity_hat[..., self.feet, :] - velocity[..., self.feet, :]
+
     def foot_height_error(self, positions_hat: torch.Tensor, positions: torch.Tensor) -> torch.Tensor:
         """Predicted minus real world heights of the feet (..., F, feet), in contact heights."""
         return self.in_heights(positions_hat[..., self.feet, 1] - positions[..., self.feet, 1])

@@ -10,6 +10,7 @@ Loss of the generator (the denoiser), per batch:
         + lambda_velocity * w_t * ||dP(x0_hat) - dP(x0)||^2           (joint velocities)
         + lambda_foot     * w_t * ||dP_feet(x0_hat)||^2 where x0's foot is in contact  (no sliding)
         + lambda_foot_height * w_t * ||P_feet,y(x0_hat) - P_feet,y(x0)||^2   (how high the feet swing)
+        + lambda_foot_velocity * w_t * ||dP_feet(x0_hat) - dP_feet(x0)||^2  (feet as fast as real ones)
         + lambda_position * w_t * ||(P - P_root)(x0_hat) - (P - P_root)(x0)||^2  (the pose's geometry)
 The position terms measure velocities in multiples of the skeleton profile's contact speed threshold
 (0.326 leg lengths/s: 4.8 units/s for Xia) and positions in contact heights (0.0326 leg lengths), so they
@@ -101,6 +102,7 @@ class StyledMotionDiffusion(MotionModule):
         lambda_velocity: float = 0.0,
         lambda_foot: float = 0.0,
         lambda_foot_height: float = 0.0,
+        lambda_foot_velocity: float = 0.0,
         lambda_position: float = 0.0,
         adv_warmup_batches: int = 500,
         cond_drop: float = 0.1,
@@ -199,7 +201,8 @@ class StyledMotionDiffusion(MotionModule):
     @property
     def uses_positions(self) -> bool:
         h = self.hparams
-        return max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height, h.lambda_position) > 0
+        return max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height, h.lambda_foot_velocity,
+                   h.lambda_position) > 0  # fmt: skip
 
     @property
     def contact_spec(self):
@@ -258,6 +261,9 @@ class StyledMotionDiffusion(MotionModule):
             if h.lambda_foot_height > 0:
                 height_error = body.foot_height_error(positions_hat, positions)
                 losses["foot_height"] = (weight * height_error.pow(2).mean(dim=(1, 2))).mean()
+            if h.lambda_foot_velocity > 0:
+                feet_error = body.foot_velocity_error(velocity_hat, velocity).pow(2).sum(-1)
+                losses["foot_velocity"] = (weight * feet_error.mean(dim=(1, 2))).mean()
         if adversarial:
             fake = self.discriminator(x0_hat, batch["style"], batch["content"])
             losses["adv"] = (weight * 0.5 * (fake - 1).pow(2)).mean()
@@ -280,6 +286,7 @@ class StyledMotionDiffusion(MotionModule):
             "velocity": h.lambda_velocity,
             "foot": h.lambda_foot,
             "foot_height": h.lambda_foot_height,
+            "foot_velocity": h.lambda_foot_velocity,
             "position": h.lambda_position,
             "adv": h.lambda_adv,
             "style_code": h.lambda_style_code,

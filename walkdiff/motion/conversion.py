@@ -125,7 +125,7 @@ def convert_file(
         raise WalkdiffError("the output is the input: write to another file", path=target)
     if Path(target).exists() and not overwrite:
         raise WalkdiffError("the output exists; pass --overwrite to replace it", path=target)
-    rig = None if to is None else TargetRig(to, to_map)  # a wrong --to is said before the clip is read
+    rig = TargetRig.of(to, to_map)  # a wrong --to is said before the clip is read
     motion = read_bvh(source)
     found = file_profile(motion, profile, source)
     canonical = found.to_canonical(motion)

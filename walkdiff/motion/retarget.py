@@ -9,23 +9,28 @@ the translation of the joint that carries its root motion change. Per clip (`Ret
    joints (`walkdiff.motion.rest_alignment`). Joints on no chain (a static root, twist and IK helpers,
    fingers only the target has) keep their reference pose; `RetargetResult.rest_joints` names them.
    Left and right are never swapped: roles carry their side from the maps.
-2. proportions: the pelvis goes where the source's does, times the legs' length ratio (target over
-   source, each in its own units: units convert with it); the up axes convert through each rig's
-   profile (canonical Y up). A vertical shift then puts the target's planted feet at the source's
-   planted heights (times the ratio): the rigs' hips may sit higher or lower above their thighs.
+2. proportions: the pelvis goes where the source's does along the ground, times the legs' length ratio
+   (target over source, each in its own units: units convert with it); the up axes convert through
+   each rig's profile (canonical Y up). Up and down, the middle of the thighs rises and falls as the
+   source's does (times the ratio): rigs put their pelvis joint at other places over the hips, and a
+   nearly straight leg bends far for a little height. A vertical shift then puts the target's planted
+   feet at the source's planted heights (times the ratio).
 3. feet: contacts are measured on the source with its profile's thresholds. With `feet="follow"`
    (default) each foot walks the source's foot path, scaled, by the foot clean-up's two-bone IK
-   (`walkdiff.motion.footfix.bend_leg`) on every frame: the ankle goes as high as the source's
-   (each joint at its own height above the floor), and along the ground the foot is anchored on
-   whichever of heel and toe is lower, so the joint on the ground goes where the source's goes whatever
-   the feet's lengths (`follow_goals`); the rig's own stance width is kept, changing only while a foot
-   is in the air. It adds no sliding of its own (the skate ratio with each rig's own profile stays the
-   source's), and a target of the same proportions reproduces the source exactly. Where a leg could not
-   reach a planted goal (a target whose hips sit higher over its feet, pushing off), the body is
-   lowered as much as that needs. `"pin"` also holds every planted foot still on its contact, the
-   clean-up's own rule: it removes the source's sliding too (on Xia, half the mean slide speed) but
-   jumps a little where heel and toe contacts change. `"off"` leaves the legs as the rotations put
-   them.
+   (`walkdiff.motion.footfix.bend_leg`) on every frame (`follow_goals`): the ankle goes as high as
+   the source's (each joint at its own height above the floor), and along the ground the foot is
+   anchored on whichever of heel and toe is lower, so the joint on the ground goes where the source's
+   goes whatever the feet's lengths. Where on the ground is the target's own: the path is moved by how
+   far the target's foot stands from it with its legs as the source's rotations put them (its hip
+   width, thigh-to-shin proportions, ankle height), held over each contact, so a leg bends away from
+   the source's direction only by how much that changes while its foot is down; high in the air the
+   leg is free. It adds no sliding of its own (the skate ratio with each rig's own profile stays the
+   source's), and a target of the same proportions reproduces the source exactly. Where a leg could
+   not reach a planted goal (a target whose hips sit higher over its feet, pushing off), the body is
+   lowered as much as that needs around those frames. `"pin"` also holds every planted foot still on
+   its contact, the clean-up's own rule: it removes the source's sliding too (on Xia, half the mean
+   slide speed) but jumps a little where heel and toe contacts change. `"off"` leaves the legs as the
+   rotations put them.
 
 A `Retargeter` does the per-rig work once (profiles, maps, reference poses, per-joint constants) and
 then converts any clip of the source skeleton; `retarget` is the one-call form.
@@ -59,6 +64,8 @@ from walkdiff.motion.skeleton import Motion, Skeleton
 
 FEET_MODES = ("follow", "pin", "off")
 BLEND_SECONDS = 0.05  # a pinned foot's correction fades in and out over this long around its contact
+AIR_BAND = (1.0, 2.0)  # a foot's goal goes from the ground path to the free leg between these heights
+DROP_SECONDS = 0.15  # the body lowered where a leg cannot reach eases in and out over this long
 
 
 @dataclass(frozen=True)
@@ -161,11 +168,12 @@ class Retargeter:
         self.local_rotations[0] = tgt.turn @ self.local_rotations[0]
         self.local_positions[0] = tgt.turn @ self.local_positions[0]
         self.pelvis = (src.index("pelvis"), tgt.index("pelvis"))
+        self.source_hips = [src.index(f"{side}_thigh") for side in SIDES]
+        self.target_hips = [tgt.index(f"{side}_thigh") for side in SIDES]
         self.carrier = _carrier(skeleton, tgt.index("pelvis"))
         feet = [(f"{s}_foot", f"{s}_toe") for s in SIDES]
         self.source_feet = [_contact_joint(src, role) for pair in feet for role in pair]
         self.target_feet = [_contact_joint(tgt, role) for pair in feet for role in pair]
-        self.source_hips = [src.index(f"{side}_thigh") for side in SIDES]
         p = self.source_profile
         names = self.source_skeleton.names
         self.contact_spec = ContactSpec(
@@ -214,6 +222,7 @@ class Retargeter:
         world = self._driven_rotations(positions, rotations)
         local_rot, local_pos, world_rot = self._locals(world, motion.num_frames)
         self._place_pelvis(local_pos, world_rot, self.leg_ratio * positions[:, self.pelvis[0]])
+        self._lift_hips(local_pos, world_rot, self.leg_ratio * positions[:, self.source_hips, 1].mean(axis=1))
         source_feet = positions[:, self.source_feet]
         low, slow = contact_state(source_feet, motion.fps, self.contact_spec)
         contacts = (low & slow).astype(np.float64)
@@ -222,7 +231,7 @@ class Retargeter:
         self._shift(local_pos, world_rot, shift)
         feet[..., 1] += shift
         if self.feet != "off":
-            scaled = self.leg_ratio * positions[:, self.source_feet + self.source_hips]
+            scaled = self.leg_ratio * positions[:, self.source_feet]
             self._fix_feet(local_rot, local_pos, world_rot, feet, scaled, contacts, motion.fps)
         inverse = self.target_ref.turn.T
         local_rot[:, 0] = inverse @ local_rot[:, 0]
@@ -263,6 +272,12 @@ class Retargeter:
                 world_rot[:, kept] = world_rot[:, parents[kept]] @ local_rot[:, kept]
         return local_rot, local_pos, world_rot
 
+    def _lift_hips(self, local_pos: np.ndarray, world_rot: np.ndarray, height: np.ndarray) -> None:
+        """Move the body vertically so that the middle of the thighs is at `height` (F,), up to one
+        shift for the clip (set later by the feet)."""
+        now = _positions_of(self.target_skeleton, local_pos, world_rot, self.target_hips).mean(axis=1)[:, 1]
+        self._shift(local_pos, world_rot, height - now - np.median(height - now))
+
     def _place_pelvis(self, local_pos: np.ndarray, world_rot: np.ndarray, place: np.ndarray) -> None:
         """Set the carrier's translation so that the pelvis lands on `place` (F, 3) (joints between
         them keep their reference transforms)."""
@@ -276,7 +291,8 @@ class Retargeter:
         else:
             local_pos[:, self.carrier] += np.einsum("fji,fj->fi", world_rot[:, parent], delta)
 
-    def _shift(self, local_pos: np.ndarray, world_rot: np.ndarray, shift: float) -> None:
+    def _shift(self, local_pos: np.ndarray, world_rot: np.ndarray, shift: float | np.ndarray) -> None:
+        """The whole body moved up by `shift` (a float, or (F,) per frame)."""
         delta = np.zeros((local_pos.shape[0], 3))
         delta[:, 1] = shift
         self._move_carrier(local_pos, world_rot, delta)
@@ -284,7 +300,7 @@ class Retargeter:
     def _fix_feet(self, local_rot, local_pos, world_rot, feet, source, contacts, fps) -> None:
         """Two-bone IK on each leg that has one, its ankle onto `follow_goals` (pinned on contacts for
         `pin`), the body lowered first where a leg could not reach (`_reach_drop`); the foot keeps its
-        world turn. `source` (F, 6, 3): the source's heels and toes (as `feet`) and hips, scaled."""
+        world turn. `source` (F, 4, 3): the source's heels and toes (as `feet`), scaled."""
         blend = max(1, int(round(BLEND_SECONDS * fps)))
         band = self.leg_ratio * self.source_profile.contact_height
         tiny = 1e-9 * self.target_ref.size
@@ -295,15 +311,14 @@ class Retargeter:
                 continue
             pair = slice(2 * side, 2 * side + 2)
             heel, toe, on = feet[:, 2 * side], feet[:, 2 * side + 1], contacts[:, pair]
-            hip = _positions_of(self.target_skeleton, local_pos, world_rot, [chain[-3]])[:, 0]
-            goal = follow_goals(heel, toe, source[:, pair], hip - source[:, 4 + side], on, band)
+            goal = follow_goals(heel, toe, source[:, pair], on, band)
             if self.feet == "pin":
                 goal = goal + ankle_offsets(goal, goal + toe - heel, on, blend)
-            legs.append((chain, heel, goal))
-        drop = self._reach_drop(local_pos, world_rot, legs, (contacts > 0.5).any(axis=1))
-        if drop > 0:
+            legs.append((chain, heel, goal, (on > 0.5).any(axis=1)))
+        drop = self._reach_drop(local_pos, world_rot, [(c, g, p) for c, _, g, p in legs], fps)
+        if drop.any():
             self._shift(local_pos, world_rot, -drop)
-        for chain, heel, goal in legs:
+        for chain, heel, goal, _ in legs:
             thigh, shin, foot = chain[-3:]
             rows = np.flatnonzero(np.linalg.norm(goal - heel, axis=-1) > tiny)
             if not rows.size:
@@ -317,59 +332,80 @@ class Retargeter:
             local_rot[rows, foot] = np.swapaxes(knee_world, -1, -2) @ rot[:, foot]
             world_rot[rows, thigh], world_rot[rows, shin] = hip_world, knee_world
 
-    def _reach_drop(self, local_pos, world_rot, legs, planted: np.ndarray) -> float:
-        """How far to lower the whole body so that every planted foot's goal is in its leg's reach: a
-        target whose hips sit higher over its feet than the source's (scaled) would otherwise stand on
-        tiptoe where the source's legs stretch (pushing off). A leg reaches at least as far as its
-        ankle stands from its hip now."""
-        if not planted.any():
-            return 0.0
-        drop = 0.0
-        for chain, _, goal in legs:
+    def _reach_drop(self, local_pos, world_rot, legs, fps: float) -> np.ndarray:
+        """(F,) how far to lower the whole body so that every planted foot's goal is in its leg's reach:
+        a target whose hips sit higher over its feet than the source's (scaled) would otherwise stand
+        on tiptoe where the source's legs stretch (pushing off). A leg reaches at least as far as its
+        ankle stands from its hip now. Lowered only around the frames that need it, eased in and out
+        over DROP_SECONDS (a drop for the whole clip bent every stance of it for one push-off)."""
+        frames = local_pos.shape[0]
+        need = np.zeros(frames)
+        for chain, goal, planted in legs:
+            if not planted.any():
+                continue
             places = _positions_of(self.target_skeleton, local_pos[planted], world_rot[planted], chain[-3:])
             hip, knee, ankle = places.transpose(1, 0, 2)
             length = np.linalg.norm(knee - hip, axis=-1) + np.linalg.norm(ankle - knee, axis=-1)
             reach = np.maximum(MAX_REACH * length, np.linalg.norm(ankle - hip, axis=-1))
             across = np.linalg.norm((goal[planted] - hip)[:, [0, 2]], axis=-1)
             above = hip[:, 1] - goal[planted, 1]
-            drop = max(drop, float((above - np.sqrt(np.maximum(reach**2 - across**2, 0.0))).max()))
-        return drop
+            need[planted] = np.maximum(need[planted], above - np.sqrt(np.maximum(reach**2 - across**2, 0.0)))
+        return _eased_above(np.maximum(need, 0.0), max(1, int(round(DROP_SECONDS * fps))))
 
 
 def follow_goals(
     heel: np.ndarray,
     toe: np.ndarray,
     source: np.ndarray,
-    stance: np.ndarray,
     contacts: np.ndarray,
     band: float,
 ) -> np.ndarray:
     """(F, 3) ankle goals of one target foot that make it walk the source's foot path (`source` (F, 2,
-    3): its heel and toe, scaled). The ankle goes as high as the source's. Along the ground the foot is
-    anchored on the lower of the two: the source's heel path while the heel is the lower (a heel
-    strike), the source's toe path less the target's own heel-to-toe while the toe is (the foot rolling
-    over it), in between within `band` of each other (a flat foot); so the joint touching the ground
-    goes where the source's goes, whatever the feet's lengths.
+    3): its heel and toe, scaled) in the target's own stance. The ankle goes as high as the source's.
+    Along the ground the foot is anchored on the lower of the two: the source's heel path while the
+    heel is the lower (a heel strike), the source's toe path less the target's own heel-to-toe while
+    the toe is (the foot rolling over it), in between within `band` of each other (a flat foot); so the
+    joint touching the ground goes where the source's goes, whatever the feet's lengths.
 
-    Where each rig puts its feet under itself differs (hips wider or narrower, an ankle higher above its
-    sole): each joint keeps its own height above the floor (`heel`, `toe` (F, 3): the target's as its
-    rotations put them), and the path moves sideways by `stance` (F, 3), how far the target's hip is
-    from the source's (scaled): held still over each contact (`contacts` (F, 2); its mean there, so a
-    planted foot moves only as the source's does) and changing between contacts, in the air."""
-    lift, floor = np.zeros((2, 3)), np.zeros(2)
+    Where on the ground is the target's own: `heel`, `toe` (F, 3) are its joints as the source's
+    rotations put them (the legs free), which carry its hip width, its thigh-to-shin proportions and
+    its ankle height. Each joint keeps its own height above the floor; along the ground the path moves
+    by how far the free foot is from the source's (scaled), held at its mean over each contact run
+    (`contacts` (F, 2)), so a planted foot moves only as the source's does and its leg bends away from
+    the source's directions only by how that offset changes during the contact. Above AIR_BAND times
+    `band` (the contact height) the goal is the free ankle, moved only by the correction the planted
+    frames on either side needed: the leg swings as the source's does."""
+    lift = np.zeros((2, 3))
     for k, joint in enumerate((heel, toe)):
         planted = contacts[:, k] > 0.5
         frames = planted if planted.any() else slice(None)
         lift[k, 1] = np.median(joint[frames, 1] - source[frames, k, 1])
-    shift = np.zeros_like(stance)
-    shift[:, [0, 2]] = _held_over_runs(stance[:, [0, 2]], (contacts > 0.5).any(axis=1))
-    by_heel = source[:, 0] + lift[0] + shift
-    by_toe = source[:, 1] + lift[1] + shift - (toe - heel)
-    above = source[..., 1] - floor
+    by_heel = source[:, 0] + lift[0]
+    by_toe = source[:, 1] + lift[1] - (toe - heel)
+    above = source[..., 1]
     weight = np.clip(0.5 + (above[:, 0] - above[:, 1]) / (2 * band), 0.0, 1.0)
     goal = by_heel + weight[:, None] * (by_toe - by_heel)
     goal[:, 1] = by_heel[:, 1]
-    return goal
+    offset = (heel - goal)[:, [0, 2]]  # the free foot against the source's path
+    planted = (contacts > 0.5).any(axis=1)
+    goal[:, [0, 2]] += _held_over_runs(offset, planted)
+    if not planted.any() or planted.all():
+        return goal
+    # High in the air the leg is free: the free ankle, moved by the correction the planted frames
+    # needed, carried linearly between them; the ground path back below AIR_BAND contact heights.
+    frames = np.arange(len(goal))
+    fix = goal - heel
+    carried = np.stack([np.interp(frames, frames[planted], fix[planted, i]) for i in range(3)], axis=1)
+    free = heel + carried
+    floor = np.percentile(source[..., 1], 5, axis=0) + lift[:, 1]
+    sole = (toe - heel)[:, 1]
+    low = np.minimum(
+        np.minimum(goal[:, 1] - floor[0], goal[:, 1] + sole - floor[1]),
+        np.minimum(free[:, 1] - floor[0], free[:, 1] + sole - floor[1]),
+    )
+    air = np.clip((low / band - AIR_BAND[0]) / (AIR_BAND[1] - AIR_BAND[0]), 0.0, 1.0)
+    air[planted] = 0.0
+    return goal + air[:, None] * (free - goal)
 
 
 def _held_over_runs(values: np.ndarray, planted: np.ndarray) -> np.ndarray:
@@ -384,6 +420,14 @@ def _held_over_runs(values: np.ndarray, planted: np.ndarray) -> np.ndarray:
         held[start:stop] = values[start:stop].mean(axis=0)
     frames = np.arange(len(values))
     return np.stack([np.interp(frames, frames[planted], held[planted, i]) for i in range(values.shape[1])], 1)
+
+
+def _eased_above(values: np.ndarray, radius: int) -> np.ndarray:
+    """(F,) a smooth curve never below `values` (F,): the largest value within `radius` frames, then
+    averaged over the same window (an average of maxima that each cover the frame)."""
+    width = 2 * radius + 1
+    peaks = np.lib.stride_tricks.sliding_window_view(np.pad(values, radius, mode="edge"), width).max(axis=1)
+    return np.lib.stride_tricks.sliding_window_view(np.pad(peaks, radius, mode="edge"), width).mean(axis=1)
 
 
 def retarget(

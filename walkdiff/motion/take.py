@@ -86,12 +86,13 @@ class Take:
         built-in rig's name (mixamo, unreal, smpl), a BVH of the rig (its first frame is the pose it is
         aligned on), or a `TargetRig` (made once, it prepares once for many takes); `target_map` overrides
         the rig's humanoid map (role: joint)."""
-        if isinstance(to, TargetRig):
-            if target_map is not None:
-                raise WalkdiffError("retarget: give target_map to the TargetRig, not beside it")
-            rig = to
-        else:
-            rig = TargetRig(to, target_map)
+        if to is None:
+            raise WalkdiffError(
+                "retarget: expected a rig (mixamo, unreal, smpl, a BVH or a TargetRig), got None"
+            )
+        if isinstance(to, TargetRig) and target_map is not None:
+            raise WalkdiffError("retarget: give target_map to the TargetRig, not beside it")
+        rig = TargetRig.of(to, target_map)
         result = rig.play(self.motion, self.profile)
         return Take(result.motion, rig.retargeter(self.motion).target_profile)
 

@@ -144,7 +144,7 @@ def view(
 
     if not paths:
         raise WalkdiffError("expected one or more BVH files to view")
-    rig = None if to is None else TargetRig(to, to_map)
+    rig = TargetRig.of(to, to_map)
     clips = [clip for p in paths for clip in load_clips(p, profile, rig)]
     centre, distance = lay_out(clips)
     try:

@@ -2,8 +2,8 @@
 stdin, a pose per frame as a JSON line on stdout) and `walkdiff play --script` (timed key events and
 commands replayed headless into a take written as BVH, glb and the commands per frame).
 
-Both drive a `WalkController` (walkdiff/autoregressive/controller.py); keys go through `KeyControl`
-(walkdiff/autoregressive/keys.py) and `Replay`, which the interactive page (`play_page.py`) shares.
+Both drive a `WalkController` (walkdiff/walker/controller.py); keys go through `KeyControl`
+(walkdiff/live/keys.py) and `Replay`, which the interactive page (`page.py`) shares.
 """
 
 from __future__ import annotations
@@ -17,24 +17,18 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from walkdiff.autoregressive.controller import (
-    WalkController,
-    angle_of,
-    checked_speed,
-    controller,
-    style_weights,
-)
-from walkdiff.autoregressive.keys import RECORD, KeyControl
-from walkdiff.autoregressive.streaming import StreamEnd, emit, stopped
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder, output_set, read_utf8, write_json
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
 from walkdiff.common.progress import progress
+from walkdiff.live.keys import RECORD, KeyControl
 from walkdiff.motion.bvh import write_bvh
 from walkdiff.motion.gltf import write_glb
 from walkdiff.motion.resample import resample
 from walkdiff.motion.take import Take
 from walkdiff.motion.target_rig import TargetRig
+from walkdiff.streams.lines import StreamEnd, emit, stopped
+from walkdiff.walker.controller import WalkController, angle_of, checked_speed, style_weights
 
 COMMANDS = ("direction", "speed", "style", "style_clips")
 CONTROL_FIELDS = (*COMMANDS, "character", "frames", "record")
@@ -143,10 +137,10 @@ def write_takes(
     return files
 
 
-def settings(ckpt, walker: WalkController, style, speed, seed, fps=None) -> dict:
+def settings(ckpt, walker: WalkController, fps=None) -> dict:
     return {
-        "checkpoint": str(ckpt), "style": style, "speed_m_s": speed, "seed": seed,
-        "sampler": walker.sampler.label(walker.model.diffusion), "model_fps": walker.fps,
+        "checkpoint": str(ckpt), "style": walker.start_style, "speed_m_s": walker.start_speed,
+        "seed": walker.seed, "sampler": walker.sampler.label(walker.model.diffusion), "model_fps": walker.fps,
         "written_fps": fps or walker.fps, "characters": walker.characters,
         "transition_s": walker.transition, "turn_rate_deg_s": math.degrees(walker.turn_rate),
         "heading_assist_deg_s": math.degrees(walker.heading_assist), "foot_lock": walker.lock is not None,
@@ -155,19 +149,19 @@ def settings(ckpt, walker: WalkController, style, speed, seed, fps=None) -> dict
     }  # fmt: skip
 
 
-def first_style(follower) -> str:
-    """The model's first style with a known walking speed: what a walker starts as by default."""
-    speeds = follower.model.style_speed.cpu().numpy()
-    return next((s for s, v in zip(follower.styles, speeds, strict=True) if v > 0), follower.styles[0])
+def keys_for(walker: WalkController, recording: bool) -> KeyControl:
+    """The keys of a walker, starting from its style, speed and example clips (C turns those off and on)."""
+    return KeyControl(
+        walker.styles, walker.speed_of, walker.start_style, walker.start_speed, recording=recording,
+        clips=walker.style_clips,
+    )  # fmt: skip
 
 
-def load_controller(ckpt, style, speed, seed, sampler, steps, eta, **options):
-    from walkdiff.autoregressive.walk import PathFollower
+def load_walker(ckpt, **options) -> WalkController:
+    """The walker a live command steers: `PathFollower.controller` of the checkpoint."""
+    from walkdiff.walker.follow import PathFollower
 
-    follower = PathFollower.load(ckpt)
-    style = style or first_style(follower)
-    walker = controller(follower.model, style, speed, seed, sampler, steps, eta, **options)
-    return walker, style
+    return PathFollower.load(ckpt).controller(**options)
 
 
 # ---------------------------------------------------------------- walkdiff play --script
@@ -254,67 +248,66 @@ def play(
     ckpt: str,
     script: str | None,
     out: str | None,
-    style: str | None = None,
-    speed: float | None = None,
-    seed: int = 0,
-    sampler: str = "ddim",
-    steps: int | None = None,
-    eta: float | None = None,
     fps: float | None = None,
     overwrite: bool = False,
-    **steering,
+    to=None,
+    to_map=None,
+    **options,
 ) -> dict:
     """`walkdiff play --script`: the script's key events and commands replayed at the model's frame rate,
-    the frames recorded written as take.bvh, take.glb and take.json (the commands per frame).
-    `steering`: the controller's transition, turn_rate, heading_assist and foot_lock."""
+    the frames recorded written as take.bvh, take.glb and take.json (the commands per frame), at `fps`
+    and played by `to` (+ `to_map`) when given. `options`: the walker's, as `PathFollower.controller`
+    takes them (style, speed, seed, the sampler, transition, turn_rate, ...)."""
     if script is None:
         raise WalkdiffError(
             "play: give a script (JSON lines of timed key events and commands) to play a take headless; "
-            "`walkdiff play` without --script (walkdiff.autoregressive.play_page) serves the page"
+            "`walkdiff play` without --script (walkdiff.live.page) serves the page"
         )
     if out is None:
         raise WalkdiffError("--out: give the folder for take.bvh, take.glb and take.json")
-    rig = TargetRig.of(steering.pop("to", None), steering.pop("to_map", None))
+    rig = TargetRig.of(to, to_map)
     out = output_folder(out)
     check_free(take_files(out, 1), overwrite)
-    walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, **steering)
+    walker = load_walker(ckpt, **options)
     events = read_script(script, walker.model)
-    frames = round(events[-1].t * walker.fps)
-    check_frames("--script", frames, WALK_BYTES_PER_FRAME)
-    pressed = any(e.key is not None and e.key.lower() == RECORD for e in events)
-
-    def keys() -> KeyControl:
-        clips = steering.get("style_clips")
-        return KeyControl(walker.styles, walker.speed_of, style, speed, recording=not pressed, clips=clips)
-
-    dry = Replay(walker.fork(), keys(), events, str(script))  # every line checked before any work
-    for frame in range(frames + 1):
-        dry.due(frame)
-    replay, log = Replay(walker, keys(), events, str(script)), []
     started = time.perf_counter()
-    with progress(desc="playing", unit="frame", total=frames) as bar:
-        for frame in range(frames):
-            replay.due(frame)
-            log.append(
-                {"frame": frame, "time": round(frame / walker.fps, 4), "recording": walker.record}
-                | walker.commanded()
-            )
-            walker.advance()
-            replay.tick()
-            bar.update(1)
-    if not walker.kept:
-        raise WalkdiffError(
-            "no frame was recorded: the script's 'r' presses left recording off throughout", path=script
-        )
-    manifest = settings(ckpt, walker, style, speed, seed, fps) | {
-        "script": str(script), "frames": frames, "recorded_frames": len(walker.kept),
+    log, held = replay(walker, events, str(script))
+    manifest = settings(ckpt, walker, fps) | {
+        "script": str(script), "frames": len(log), "recorded_frames": len(walker.kept),
         "generation_seconds": round(time.perf_counter() - started, 2),
-        "keys_held_at_end": sorted(replay.keys.held), "commands": log,
+        "keys_held_at_end": held, "commands": log,
     }  # fmt: skip
     write_takes(out, walker, manifest, fps, rig=rig)
     return {k: v for k, v in manifest.items() if k != "commands"} | {
         "files": [str(f) for f in take_files(out, 1)]
     }
+
+
+def replay(walker: WalkController, events: list[Event], where: str) -> tuple[list[dict], list[str]]:
+    """A script's events played on the walker until its last line's time, every line checked on a fork
+    first (before any work): each frame's command as the log records it, and the keys held at the end."""
+    frames = round(events[-1].t * walker.fps)
+    check_frames("--script", frames, WALK_BYTES_PER_FRAME)
+    pressed = any(e.key is not None and e.key.lower() == RECORD for e in events)
+    dry = Replay(walker.fork(), keys_for(walker, not pressed), events, where)
+    for frame in range(frames + 1):
+        dry.due(frame)
+    played, log = Replay(walker, keys_for(walker, not pressed), events, where), []
+    with progress(desc="playing", unit="frame", total=frames) as bar:
+        for frame in range(frames):
+            played.due(frame)
+            log.append(
+                {"frame": frame, "time": round(frame / walker.fps, 4), "recording": walker.record}
+                | walker.commanded()
+            )
+            walker.advance()
+            played.tick()
+            bar.update(1)
+    if not walker.kept:
+        raise WalkdiffError(
+            "no frame was recorded: the script's 'r' presses left recording off throughout", path=where
+        )
+    return log, sorted(played.keys.held)
 
 
 # ---------------------------------------------------------------- walkdiff control: JSON lines
@@ -359,22 +352,18 @@ def apply_line(walker: WalkController, data: dict, out: Path | None, where: str,
 
 def control(
     ckpt: str,
-    style: str | None = None,
-    speed: float | None = None,
-    seed: int = 0,
-    sampler: str = "ddim",
-    steps: int | None = None,
-    eta: float | None = None,
-    characters: int = 1,
     out: str | None = None,
     overwrite: bool = False,
-    **steering,
+    to=None,
+    to_map=None,
+    characters: int = 1,
+    **options,
 ) -> dict:
     """`walkdiff control`: commands as JSON lines on stdin, one JSON line per frame (and character) on
     stdout as soon as it is made; with `out`, the recorded take written at the end (also when a bad line
-    stops it: the frames made so far are kept). `steering`: as `play`'s."""
+    stops it: the frames made so far are kept). `options`: the walker's, as `play`'s."""
     where = "-"
-    rig = TargetRig.of(steering.pop("to", None), steering.pop("to_map", None))
+    rig = TargetRig.of(to, to_map)
     if rig is not None and out is None:
         raise WalkdiffError(
             "--to plays the take written with --out; give --out (the live lines stay on the model's skeleton)"
@@ -382,10 +371,7 @@ def control(
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, characters), overwrite)
-    walker, style = load_controller(
-        ckpt, style, speed, seed, sampler, steps, eta, characters=characters, record=folder is not None,
-        **steering,
-    )  # fmt: skip
+    walker = load_walker(ckpt, characters=characters, record=folder is not None, **options)
     emit(header(walker))
     log, end, started = [], StreamEnd(), time.perf_counter()
     with end.watch():  # a bad line or Ctrl-C: the frames made so far are kept, and written with --out
@@ -407,7 +393,7 @@ def control(
                     emit(frame_line(pose, walker.fps, latency, characters))
     files = []
     if folder is not None and walker.kept:
-        manifest = settings(ckpt, walker, style, speed, seed) | {
+        manifest = settings(ckpt, walker) | {
             "source": "stdin", "frames": walker.frame, "recorded_frames": len(walker.kept),
             "error": None if end.error is None else str(end.error) or "interrupted", "commands": log,
         }  # fmt: skip

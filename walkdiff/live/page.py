@@ -2,7 +2,7 @@
 
 Why a page of our own rather than viser's (`walkdiff view`): viser 1.1 hands no keyboard events to Python,
 and its three.js client needs WebGL, which a browser without a GPU (headless Chromium, a remote desktop)
-runs in software, slowly. The page here is one self-written file, `play_page.html` beside this module: a
+runs in software, slowly. The page here is one self-written file, `page.html` beside this module: a
 2-D canvas drawn in perspective (a floor grid, the walker's trail, its bones in left/right colours), the
 camera following behind the commanded direction, keys and a small panel (style menu, speed slider, record
 button). One local server answers on one port: the `websockets` package (already a dependency) serves
@@ -38,18 +38,25 @@ from http import HTTPStatus
 from importlib import resources
 from pathlib import Path
 
-from walkdiff.autoregressive.controller import WalkController, checked_speed
-from walkdiff.autoregressive.keys import KeyControl
-from walkdiff.autoregressive.play import Replay, load_controller, settings, take_files, write_takes
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import check_free, output_folder
 from walkdiff.common.memory import WALK_BYTES_PER_FRAME, check_frames
+from walkdiff.live.keys import KeyControl
+from walkdiff.live.play import (
+    Replay,
+    keys_for,
+    load_walker,
+    settings,
+    take_files,
+    write_takes,
+)
 from walkdiff.preview.scene import limb_sides
+from walkdiff.walker.controller import WalkController, checked_speed
 
 DEFAULT_PORT = 8081
 # A browser opens spare sockets and may close them without a request; websockets logs each as a failed
 # handshake with a traceback. Nothing is wrong then: keep the user's terminal for what is.
-CONNECTIONS = logging.getLogger("walkdiff.play_page.connections")
+CONNECTIONS = logging.getLogger("walkdiff.live.page.connections")
 CONNECTIONS.addFilter(lambda record: record.getMessage() != "opening handshake failed")
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 WHERE = "the page"
@@ -57,7 +64,7 @@ BEHIND_S = 0.25  # a walker this late on its schedule skips ahead instead of cat
 
 
 def page_html() -> bytes:
-    return resources.files("walkdiff.autoregressive").joinpath("play_page.html").read_bytes()
+    return resources.files("walkdiff.live").joinpath("page.html").read_bytes()
 
 
 def address(host: str, port: int) -> str:
@@ -416,27 +423,16 @@ class PlayPage:
 
 
 def open_page(
-    ckpt: str,
-    out: str | None = None,
-    style: str | None = None,
-    speed: float | None = None,
-    seed: int = 0,
-    sampler: str = "ddim",
-    steps: int | None = None,
-    eta: float | None = None,
-    fps: float | None = None,
-    overwrite: bool = False,
-    **steering,
+    ckpt: str, out: str | None = None, fps: float | None = None, overwrite: bool = False, **options
 ) -> PlayPage:
     """The page's walker loaded and its output folder checked (take.* free unless `overwrite`);
-    `steering`: the controller's transition, turn_rate, heading_assist and foot_lock."""
+    `options`: the walker's, as `PathFollower.controller` takes them (style, speed, seed, the sampler,
+    transition, turn_rate, heading_assist, foot_lock, style_clips, match_clips)."""
     folder = None if out is None else output_folder(out)
     if folder is not None:
         check_free(take_files(folder, 1), overwrite)
-    walker, style = load_controller(ckpt, style, speed, seed, sampler, steps, eta, record=False, **steering)
-    clips = steering.get("style_clips")
-    keys = KeyControl(walker.styles, walker.speed_of, style, speed, recording=False, clips=clips)
-    return PlayPage(walker, keys, folder, settings(ckpt, walker, style, speed, seed, fps), fps, overwrite)
+    walker = load_walker(ckpt, record=False, **options)
+    return PlayPage(walker, keys_for(walker, False), folder, settings(ckpt, walker, fps), fps, overwrite)
 
 
 def serve_page(ckpt: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT, **options) -> dict:

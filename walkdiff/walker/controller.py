@@ -44,7 +44,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from walkdiff.autoregressive.foot_lock import FootLock
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.models.path_walker import advance_root
@@ -57,6 +56,7 @@ from walkdiff.motion.representation import decode
 from walkdiff.motion.rotations import matrix_to_quaternion, sixd_to_matrix
 from walkdiff.motion.skeleton import Motion
 from walkdiff.motion.take import Take
+from walkdiff.walker.foot_lock import FootLock
 
 TRANSITION = 0.5  # seconds a style change is ramped over (live-control.md: seams at style switches)
 TURN_RATE = 720.0  # degrees per second the control's path bends at towards a new direction
@@ -246,6 +246,8 @@ class WalkController:
         self.weights = weights[None].repeat(characters, 1)  # the conditioning now (N, S)
         self.ramp = [Ramp(weights, weights)] * characters
         self.labels = [label] * characters
+        # As given: what manifests record and the keys start from.
+        self.start_style, self.start_speed, self.seed, self.style_clips = style, speed, seed, style_clips
         self.match_clips, self.guide = match_clips, None
         self.clip_cache: dict[str, StyleStatistics | None] = {}  # clips given as text, read once (the C key)
         self.matching: list[Ramp] = []  # example clips' statistics per character, once any are given
@@ -484,12 +486,21 @@ class WalkController:
         return array
 
 
+def first_style(model) -> str:
+    """The model's first style with a known walking speed: what a walker starts as by default."""
+    styles, speeds = model.spec["styles"], model.style_speed.cpu().numpy()
+    return next((s for s, v in zip(styles, speeds, strict=True) if v > 0), styles[0])
+
+
 def controller(
-    model, style, speed=None, seed=0, sampler="ddim", steps=None, eta=None, characters=1, **options
+    model, style=None, speed=None, seed=0, sampler="ddim", steps=None, eta=None, characters=1, **options
 ) -> WalkController:
-    """A `WalkController` of a PathWalker with the sampler named as on the command line (ddim: 10 steps
-    and eta 1 unless given)."""
+    """A `WalkController` of a PathWalker, set up as every live front end sets it up (`PathFollower.
+    controller`, `walkdiff play`, `control`, the page): `style` None is the model's first style with a
+    known walking speed; the sampler named as on the command line (ddim: 10 steps and eta 1 unless
+    given)."""
     if sampler == "ddim":
         steps, eta = steps or 10, 1.0 if eta is None else eta
     choice = SamplerChoice(sampler, steps, eta or 0.0)
+    style = first_style(model) if style is None else style
     return WalkController(model, style, speed, seed, choice, characters, **options)

@@ -1,1 +1,0 @@
-"""The autoregressive DiffMotion family at work: speech-driven gestures, path walking and streaming."""

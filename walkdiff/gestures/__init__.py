@@ -1,0 +1,2 @@
+"""Speech-driven gestures (DiffMotion): `GestureGenerator`, `walkdiff gesture` and its stream, and
+`walkdiff evaluate-gesture`."""
