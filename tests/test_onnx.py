@@ -174,6 +174,17 @@ def test_runtime_refuses_what_it_cannot_run(walker_ckpt, xia_dir):
         controller(frames, "old", sampler="ddim", steps=4).command(style_clips=str(walker_clip))
 
 
+def test_export_refuses_what_it_cannot_export(gesture_ckpt, tmp_path, capsys):
+    out, missing = tmp_path / "out", tmp_path / "missing.ckpt"
+    assert main(["export", "--format", "onnx", "--ckpt", str(missing), "--out", str(out)]) == 1
+    assert "missing.ckpt" in capsys.readouterr().err
+    # A page steers a walker: a gesture model is refused (without onnxruntime-web: `make web` is asked for).
+    assert main(["export", "--format", "web", "--ckpt", str(gesture_ckpt), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "needs a path walker" in err or "make web" in err
+    assert not out.exists() or not any(out.iterdir())
+
+
 def test_streams_out_of_step_match_torch(gesture_ckpt):
     """Streams fed at different paces advance a few rows at a time (`advance(rows=...)`): the same
     frames on both runtimes."""
