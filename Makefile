@@ -9,7 +9,10 @@ UI_PORT  ?= 5000
 
 EVALUATOR := checkpoints/evaluator_xia/last.ckpt
 
-.PHONY: install test docs-check train evaluator ui lint clean
+.PHONY: install test docs-check train evaluator ui lint clean web
+
+# onnxruntime-web for the page that needs no server (`walkdiff export --format web`), pinned, from npm.
+ORT_WEB := .cache/onnxruntime-web-1.30.0
 
 install: $(STAMP)
 
@@ -48,6 +51,14 @@ ui: install
 	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow server \
 	  --backend-store-uri $(MLFLOW_DB) --default-artifact-root ./mlruns/artifacts \
 	  --host 127.0.0.1 --port $(UI_PORT) --workers 1
+
+web: $(ORT_WEB)/ort.wasm.min.js
+$(ORT_WEB)/ort.wasm.min.js:
+	@mkdir -p $(ORT_WEB)/npm
+	cd $(ORT_WEB)/npm && npm pack --silent onnxruntime-web@1.30.0
+	tar -xzf $(ORT_WEB)/npm/onnxruntime-web-1.30.0.tgz -C $(ORT_WEB) --strip-components=2 \
+	  package/dist/ort.wasm.min.js package/dist/ort-wasm-simd-threaded.wasm package/dist/ort-wasm-simd-threaded.mjs
+	@rm -rf $(ORT_WEB)/npm
 
 lint: install
 	$(VENV)/bin/ruff check walkdiff tests

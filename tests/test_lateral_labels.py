@@ -309,3 +309,35 @@ def test_disguise_labels_walks_by_how_they_turn(xia_dir):
     expected = {f"{s}.bvh": LABELS.get(s, "walk") for s in LEFT + RIGHT + STRAIGHT}
     assert labels == expected
     assert set(splits.values()) == {"train"}  # no style and label with three clips: none held out
+
+
+def test_scan_counts_the_training_windows_per_content_as_the_data_module_draws_them(turning, tmp_path):
+    """The content shares `data scan` reports are those of the windows training sees, mirrored copies
+    under their own labels: a left turn's mirrored copy adds to the right turns."""
+    from collections import Counter
+
+    from walkdiff.data import laterality
+    from walkdiff.data.clips import ContentSelection
+    from walkdiff.data.folder import FolderSource
+    from walkdiff.data.scan import _read_clips, _suggest, training_windows
+
+    folder, _ = turning
+    source = FolderSource(folder)
+    clips = source.list_clips()
+    splits = source.split_clips(clips, ContentSelection(tuple(source.groups)))
+    suggested = _suggest(_read_clips(source, clips), None)
+    swaps = laterality.mirror_labels(source.styles, source.groups, None)
+    counted = Counter()
+    for (_, content), n in training_windows(clips, splits, suggested, swaps).items():
+        counted[source.groups[content]] += n
+
+    dm = _module(folder, tmp_path / "cache", fps=suggested.fps, window=suggested.window,
+                 stride=suggested.stride, mirror=True)  # fmt: skip
+    dm.setup("fit")
+    data = dm.datasets["train"]
+    names = dm.spec.contents
+    drawn = Counter(names[data.labels[clip][1]] for clip, _ in data.index)
+    assert counted == drawn and drawn["walk-turn-left"] > 0 and drawn["walk-turn-right"] > 0
+    line = next(row for row in scan(folder).splitlines() if row.startswith("Training windows per content"))
+    for name, n in drawn.items():
+        assert f"{name} {n / sum(drawn.values()):.0%}" in line

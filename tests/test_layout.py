@@ -30,15 +30,16 @@ ARROWS = {
         "common", "motion", "retarget", "diffusion", "metrics", "models", "data", "preview", "streams",
     ),
     "live": ("common", "motion", "retarget", "preview", "streams", "walker"),
+    "export": ("common", "diffusion", "models", "data"),
     "evaluation": ("common", "motion", "diffusion", "metrics", "models", "data"),
     "callbacks": ("common", "motion", "retarget", "preview", "styled", "walker", "gestures", "evaluation"),
     "api": ("common", "styled", "walker", "gestures"),
     "bench": (
         "common", "motion", "retarget", "diffusion", "metrics", "models", "data", "preview", "styled",
-        "walker", "gestures", "live", "evaluation", "callbacks", "api",
+        "walker", "gestures", "live", "export", "evaluation", "callbacks", "api",
     ),
     "cli": (
-        "common", "motion", "retarget", "data", "preview", "styled", "walker", "gestures", "live",
+        "common", "motion", "retarget", "data", "preview", "styled", "walker", "gestures", "live", "export",
         "evaluation", "callbacks", "bench",
     ),
     "__init__": (

@@ -532,7 +532,9 @@ def test_bench_train_times_a_recipe_beside_its_config_in_one_run(tiny_root, tmp_
     args = ["--model.min_snr_gamma", "5", "--data.stride=3", "--trainer.max_steps", "9"]
     model, dm = _config_model_and_data(str(config), args)
     assert model.hparams.min_snr_gamma == 5 and dm.hparams.stride == 3
-    result = bench_train_recipe(str(tmp_path / "recipe.json"), str(config), args, batches=2, warmup=1, repeats=2)
+    result = bench_train_recipe(
+        str(tmp_path / "recipe.json"), str(config), args, batches=2, warmup=1, repeats=2
+    )
     assert [len(v) for v in result["seconds_per_batch"].values()] == [2, 2]
     medians = result["seconds_per_batch_median"]
     assert result["recipe_over_config"] == pytest.approx(medians["recipe"] / medians["config"], rel=0.01)

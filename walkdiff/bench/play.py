@@ -500,11 +500,17 @@ def bench_play(
     characters: tuple[int, ...] = (1, 4, 8, 16, 32),
     timing_frames: int = 30,
     switch_seeds: int = 6,
+    runtime: str = "torch",
     **steering,
 ) -> dict:
     """Every scenario for `seeds` seeds (the style tour for `switch_seeds`), the measures of the module
     docstring, written to `out`.
-    `steering`: the controller's turn_rate, heading_assist and foot_lock (its defaults otherwise)."""
+    `steering`: the controller's turn_rate, heading_assist and foot_lock (its defaults otherwise).
+    `runtime` onnx: every frame made by ONNX Runtime (`OnnxFrames`), but for the example clips' walks
+    (their guide runs on torch) and the page (its server's)."""
+    from walkdiff.export.onnx_files import sampler_choice
+    from walkdiff.export.runtime import frame_runtime
+
     steering = {"turn_rate": TURN_RATE, "heading_assist": HEADING_ASSIST, "foot_lock": True} | steering
     if hold < 2:
         raise WalkdiffError(
@@ -518,11 +524,12 @@ def bench_play(
     if not styles:
         raise WalkdiffError("the checkpoint has no walking speed for any style", path=ckpt)
     speed = float(known[list(model.spec["styles"]).index(styles[0])]) * unit
+    runner = frame_runtime(model, runtime, sampler_choice(sampler, steps, eta))
 
     def make(seed: int, n: int = 1, pace: float | None = speed, ramp: float = transition, style=styles[0],
-             **options) -> WalkController:  # fmt: skip
+             frames=runner, **options) -> WalkController:  # fmt: skip
         return controller(
-            model, style, pace, seed, sampler, steps, eta, n, transition=ramp, **steering, **options
+            frames, style, pace, seed, sampler, steps, eta, n, transition=ramp, **steering, **options
         )
 
     takes, at_once = [], []
@@ -540,11 +547,11 @@ def bench_play(
     print("bench play: style, skating and seams", flush=True)
     scorer = ClipScorer(evaluator)
     style, skating = recognition(scorer, takes, model)
-    clipped = clip_walks(make, scorer, model, styles, 2 * hold)
+    clipped = clip_walks(partial(make, frames=model), scorer, model, styles, 2 * hold)
     print("bench play: the page in headless Chromium", flush=True)
     shown = page_open(ckpt, sampler, steps, eta)
     result = {
-        "benchmark": "play", "checkpoint": str(ckpt), "evaluator": str(evaluator),
+        "benchmark": "play", "runtime": runtime, "checkpoint": str(ckpt), "evaluator": str(evaluator),
         "sampler": make(0).sampler.label(model.diffusion), "fps": fps, "seeds": seeds,
         "switch_seeds": switch_seeds, "hold_s": hold,
         "transition_s": transition, "turn_rate_deg_s": steering["turn_rate"],

@@ -132,27 +132,34 @@ def bench_stream(
     sampler: str = "ddpm",
     steps: int | None = None,
     eta: float = 0.0,
+    runtime: str = "torch",
 ) -> dict:
     """Streaming: latency from audio in to pose out with audio arriving in real time, the streams kept
     in real time batched; the same for the path walker (a path drawn while walking). Latency is timed
     with one torch thread (as fast as two for one stream on a quiet machine, far faster on a busy one);
-    the streams kept in real time at each of `threads`."""
+    the streams kept in real time at each of `threads`. `runtime` onnx: the frames made by ONNX Runtime
+    (`OnnxFrames`, on the same thread counts)."""
     before = torch.get_num_threads()
     try:
         from walkdiff.diffusion import SamplerChoice
 
         choice = SamplerChoice(sampler, steps, eta)
-        return _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, choice)
+        return _bench_stream(
+            out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, choice, runtime
+        )
     finally:
         torch.set_num_threads(before)
 
 
-def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, sampler) -> dict:
+def _bench_stream(
+    out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed, threads, sampler, runtime
+) -> dict:
     torch.set_num_threads(1)
+    from walkdiff.export.runtime import frame_runtime
     from walkdiff.gestures.stream import GestureBatch, GestureStream
     from walkdiff.walker.stream import WalkBatch, WalkStream
 
-    model = gesture_model(ckpt).eval()  # the checkpoint, or ZEGGS-sized untrained
+    model = frame_runtime(gesture_model(ckpt).eval(), runtime, sampler)  # the checkpoint, or ZEGGS-sized
     rate = model.spec.get("sample_rate") or rate
     fps, rng = model.spec["fps"], np.random.default_rng(seed)
     audio = rng.normal(0, 0.1, round(seconds * rate)).astype(np.float32)
@@ -193,7 +200,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
     sustained = _sustained(gesture_batch, fps, frames, most, threads)
     torch.set_num_threads(1)
     result = {
-        "benchmark": "stream", "checkpoint": ckpt, "seed": seed,
+        "benchmark": "stream", "runtime": runtime, "checkpoint": ckpt, "seed": seed,
         "gesture": {
             "sampler": sampler.label(model.diffusion), "fps": fps, "rate": rate, "chunk_ms": chunk_ms,
             "audio_seconds": seconds,
@@ -205,7 +212,7 @@ def _bench_stream(out, ckpt, walker, seconds, chunk_ms, rate, frames, most, seed
         },
     }  # fmt: skip
 
-    walk = _stream_walker(walker, 12.0)  # Xia units/s: ~0.7 m/s
+    walk = frame_runtime(_stream_walker(walker, 12.0), runtime, sampler)  # Xia units/s: ~0.7 m/s
     wfps, speed = walk.spec["fps"], float(walk.style_speed.max())
     step = speed / wfps  # one path point per frame time, as far as the walker goes in it
     u = np.arange(round(seconds * wfps) + 200) * step

@@ -168,7 +168,16 @@ def add_gesture(bench) -> None:
     b.add_argument("--steps", type=count(1), default=10, help="its steps (default 10)")
     b.add_argument("--eta", type=number(0, 1), default=1.0, help="DDIM noise (default 1: as DDPM's steps)")
     b.add_argument("--streams", default="16,64,128", help="batched streams timed (default 16,64,128)")
+    runtime_option(b)
     b.set_defaults(run=run_gesture)
+
+
+def runtime_option(b) -> None:
+    b.add_argument(
+        "--runtime", choices=("torch", "onnx"), default="torch",
+        help="what makes each frame: torch (default) or the frame exported to ONNX and run by ONNX Runtime "
+        "on --threads threads (docs/game-engines.md)",
+    )  # fmt: skip
 
 
 def run_gesture(args: argparse.Namespace) -> None:
@@ -176,7 +185,7 @@ def run_gesture(args: argparse.Namespace) -> None:
 
     bench_gesture(
         args.out, args.ckpt, args.frames, args.repeats, args.sampler, args.steps, args.eta,
-        frame_counts(args.streams, "--streams"),
+        frame_counts(args.streams, "--streams"), args.runtime,
     )  # fmt: skip
 
 
@@ -209,6 +218,7 @@ def add_stream(bench) -> None:
         help="torch thread counts the streams are timed at (default 1,2; latency: 1)",
     )
     frame_sampler_options(b)
+    runtime_option(b)
     b.set_defaults(run=run_stream)
 
 
@@ -218,6 +228,7 @@ def run_stream(args: argparse.Namespace) -> None:
     bench_stream(
         args.out, args.ckpt, args.walker, args.seconds, args.chunk_ms, args.rate, args.frames, args.most,
         threads=frame_counts(args.threads, "--threads"), sampler=args.sampler, steps=args.steps, eta=args.eta,
+        runtime=args.runtime,
     )  # fmt: skip
 
 
@@ -447,6 +458,7 @@ def add_play(bench) -> None:
     b.add_argument(
         "--frames", type=count(1), default=30, help="frames timed per character count (default 30)"
     )
+    runtime_option(b)
     b.set_defaults(run=run_play)
 
 
@@ -457,7 +469,7 @@ def run_play(args: argparse.Namespace) -> None:
         args.out, args.ckpt, args.evaluator, args.seeds, args.hold, args.sampler, args.steps, args.eta,
         args.transition, frame_counts(args.characters, "--characters"), args.frames,
         switch_seeds=args.switch_seeds, turn_rate=args.turn_rate, heading_assist=args.heading_assist,
-        foot_lock=args.foot_lock,
+        foot_lock=args.foot_lock, runtime=args.runtime,
     )  # fmt: skip
 
 

@@ -195,6 +195,34 @@ def _suggest(found: _Found, fps: float | None) -> _Suggested:
 # ---------------------------------------------------------------- report helpers
 
 
+def training_windows(
+    clips, splits: dict, suggested: _Suggested, swaps: laterality.MirrorLabels | None
+) -> Counter:
+    """Training windows per (style, content) index pair at the suggested window and stride, mirrored
+    copies counted under their own labels (a mirrored left turn is a right turn's window)."""
+    frames = {clip.name: n for clip, n in zip(clips, suggested.frames)}
+    cells: Counter = Counter()
+    for clip in splits["train"]:
+        n = max(0, (int(frames[clip.name]) - suggested.window) // suggested.stride + 1)
+        copies = [clip] if swaps is None else [clip, swaps.mirrored(clip)]
+        for copy in copies:
+            if copy is not None and n:
+                cells[copy.style, copy.content] += n
+    return cells
+
+
+def _window_lines(source: FolderSource, cells: Counter) -> list[str]:
+    """How the training windows split over content labels: the share each gets of an unbalanced epoch."""
+    if len(source.groups) < 2 or not cells:
+        return []
+    by_content = Counter()
+    for (_, content), n in cells.items():
+        by_content[content] += n
+    total = sum(by_content.values())
+    shares = ", ".join(f"{g} {by_content[i] / total:.0%}" for i, g in enumerate(source.groups))
+    return [f"Training windows per content (mirrored copies under their own labels): {shares}"]
+
+
 def _report(
     folder: Path,
     source: FolderSource,
@@ -256,6 +284,7 @@ def _report(
     lines += _label_lines(source, clips)
     if swaps is not None:
         lines += _mirror_lines(swaps)
+    lines += _window_lines(source, training_windows(clips, splits, suggested, swaps))
 
     fps, window, stride = suggested.fps, suggested.window, suggested.stride
     lines.append(f"Clip length at {fps:g} fps (p{' / p'.join(str(p) for p in PERCENTILES)}):")
