@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from walkdiff.common.errors import WalkdiffError
+from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import contact_state
 from walkdiff.motion.skeleton import Motion
-from walkdiff.retarget.rest_alignment import forward_kinematics_np
 
 WALKING_SPEED_M_S = 0.5  # a clip whose body goes on average this fast over the ground walks (or runs)
 
@@ -26,7 +26,7 @@ def travels(motion: Motion) -> bool:
     """Whether the clip's body goes somewhere: its root's horizontal path at WALKING_SPEED_M_S or more
     on average (a walk or a run, not a punch or a jump on the spot)."""
     profile = SkeletonProfile.detect(motion)
-    points = forward_kinematics_np(motion.rotations, motion.positions, motion.skeleton.parents)[0]
+    points = forward_kinematics(motion.rotations, motion.positions, motion.skeleton.parents)
     root = (points[:, profile.root_index] @ profile.turn.T)[:, [0, 2]]
     path = np.linalg.norm(np.diff(root, axis=0), axis=1).sum() * profile.metres_per_unit
     return path / max(motion.num_frames - 1, 1) * motion.fps >= WALKING_SPEED_M_S
@@ -48,7 +48,7 @@ def circled(motion: Motion, radius_m: float, sign: float = 1.0) -> Motion:
         raise WalkdiffError(f"circled: radius {radius_m}: expected a positive number of metres")
     profile = SkeletonProfile.detect(motion)
     turn = profile.turn  # file axes -> canonical (Y up)
-    points = forward_kinematics_np(motion.rotations, motion.positions, motion.skeleton.parents)[0] @ turn.T
+    points = forward_kinematics(motion.rotations, motion.positions, motion.skeleton.parents) @ turn.T
     feet = [motion.skeleton.index(n) for n in profile.contacts.joints]
     low, slow = contact_state(points[:, feet], motion.fps, profile.contacts)
     planted = (low & slow).astype(np.float64)  # (F, 4)

@@ -59,11 +59,11 @@ from walkdiff.common.progress import progress
 from walkdiff.metrics.physics import skating_sums
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.humanoid import SIDES, humanoid_map
+from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
-from walkdiff.retarget.rest_alignment import forward_kinematics_np
 from walkdiff.retarget.retargeter import Retargeter
 from walkdiff.retarget.rigs import RIGS, rig
 
@@ -119,7 +119,9 @@ READINGS = {
 
 
 def world(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    return forward_kinematics_np(motion.rotations, motion.positions, motion.skeleton.parents)
+    return forward_kinematics(
+        motion.rotations, motion.positions, motion.skeleton.parents, return_rotations=True
+    )
 
 
 def position_error(a: Motion, b: Motion, height: float) -> np.ndarray:

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from walkdiff.motion.humanoid import FINGERS, SIDES, HumanoidMap, path_between
+from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.posed_frames import subtree
 from walkdiff.motion.rotations import rotation_between
 from walkdiff.motion.skeleton import Motion, Skeleton
@@ -64,30 +65,6 @@ def depth_levels(parents) -> list[np.ndarray]:
     for j, p in enumerate(parents):
         depth[j] = 0 if p < 0 else depth[p] + 1
     return [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)]
-
-
-def forward_kinematics_np(
-    rotations: np.ndarray, positions: np.ndarray, parents
-) -> tuple[np.ndarray, np.ndarray]:
-    """World positions (..., J, 3) and rotations (..., J, 3, 3) from local ones, in numpy (no autograd
-    needed) and one batched product per tree level (a Python step per joint costs more than the maths)."""
-    parents = np.asarray(parents)
-    world_rot = np.empty_like(rotations)
-    world_pos = np.empty_like(positions)
-    for level in depth_levels(parents):
-        up = parents[level]
-        if up[0] < 0:
-            world_rot[..., level, :, :], world_pos[..., level, :] = (
-                rotations[..., level, :, :],
-                positions[..., level, :],
-            )
-            continue
-        parent_rot = world_rot[..., up, :, :]
-        world_rot[..., level, :, :] = parent_rot @ rotations[..., level, :, :]
-        world_pos[..., level, :] = (
-            world_pos[..., up, :] + (parent_rot @ positions[..., level, :, None])[..., 0]
-        )
-    return world_pos, world_rot
 
 
 @dataclass
@@ -144,7 +121,7 @@ def reference_pose(
         local_pos = skeleton.offsets.copy()
     else:
         local_rot, local_pos = motion.rotations[frame].copy(), motion.positions[frame].copy()
-    pos, rot = forward_kinematics_np(local_rot, local_pos, skeleton.parents)
+    pos, rot = forward_kinematics(local_rot, local_pos, skeleton.parents, return_rotations=True)
     return Reference(skeleton, hmap, turn, pos @ turn.T, turn @ rot, local_rot, local_pos, how)
 
 

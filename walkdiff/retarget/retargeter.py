@@ -46,6 +46,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import single_thread
 from walkdiff.motion.footfix import MAX_REACH, ankle_offsets, bend_leg, contact_runs
 from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map, leg_length
+from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.posed_frames import ancestors, rest_pose_problem
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
@@ -57,7 +58,6 @@ from walkdiff.retarget.rest_alignment import (
     Reference,
     alignment,
     depth_levels,
-    forward_kinematics_np,
     pose_points,
     reference_pose,
 )
@@ -215,8 +215,8 @@ class Retargeter:
                 f"({motion.skeleton.num_joints} joints vs {self.source_skeleton.num_joints})"
             )
         turn = self.source_ref.turn
-        positions, rotations = forward_kinematics_np(
-            motion.rotations, motion.positions, self.source_skeleton.parents
+        positions, rotations = forward_kinematics(
+            motion.rotations, motion.positions, self.source_skeleton.parents, return_rotations=True
         )
         positions, rotations = positions @ turn.T, turn @ rotations
         world = self._driven_rotations(positions, rotations)
@@ -523,7 +523,7 @@ def _source_reference(source: Motion, hmap: HumanoidMap, turn: np.ndarray, frame
     if problem is None:
         return rest
     skeleton = source.skeleton
-    positions, _ = forward_kinematics_np(source.rotations, source.positions, skeleton.parents)
+    positions = forward_kinematics(source.rotations, source.positions, skeleton.parents)
     up = positions @ turn.T
     head, feet = skeleton.index(hmap.head), [skeleton.index(hmap.joint(f"{s}_foot")) for s in SIDES]
     standing = int(np.argmax(up[:, head, 1] - up[:, feet, 1].min(axis=1)))
