@@ -58,15 +58,6 @@ FINGER_PAIRS = (
 )
 
 
-def depth_levels(parents) -> list[np.ndarray]:
-    """Joint indices grouped by depth in the tree, root level first: one batched step per level."""
-    parents = np.asarray(parents)
-    depth = np.zeros(len(parents), dtype=np.int64)
-    for j, p in enumerate(parents):
-        depth[j] = 0 if p < 0 else depth[p] + 1
-    return [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)]
-
-
 @dataclass
 class Reference:
     """One rig in its reference pose: world positions (J, 3) and rotations (J, 3, 3) in canonical axes

@@ -46,7 +46,7 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import single_thread
 from walkdiff.motion.footfix import MAX_REACH, ankle_offsets, bend_leg, contact_runs
 from walkdiff.motion.humanoid import SIDES, HumanoidMap, humanoid_map, leg_length
-from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion.kinematics import depth_levels, forward_kinematics
 from walkdiff.motion.posed_frames import ancestors, rest_pose_problem
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import contact_state
@@ -57,7 +57,6 @@ from walkdiff.retarget.rest_alignment import (
     Drive,
     Reference,
     alignment,
-    depth_levels,
     pose_points,
     reference_pose,
 )
