@@ -246,6 +246,7 @@ def finish(
     of the same frames) written over it exactly: whole frames (`kept_frames`, (F,) bool) and joints
     (`kept_joints`; the root joint: its position too)."""
     position, heading = placement(raw, constraint)
+    raw = smooth_seams(raw, kept_frames)
     motion = decode(raw, skeleton, 1.0 / fps, position, heading)
     if pin_feet and (~kept_frames).any():
         contacts = raw[:, FeatureLayout(skeleton.num_joints).contacts]
@@ -260,6 +261,38 @@ def finish(
         if j == 0:
             positions[:, 0] = kept.positions[:, 0]
     return Motion(skeleton, rotations, positions, motion.frame_time)
+
+
+SEAM_FRAMES = 8  # made frames a seam's mismatch is spread over, at most
+
+
+def smooth_seams(raw: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """Raw features (F, D) whose made frames next to held ones are moved, by an offset that fades out,
+    onto the held frames' course: the first made frame lands where the held pose, carried on at its last
+    velocity, would be, and the offset fades over up to SEAM_FRAMES frames (half the run of made frames).
+    Replacement keeps the known frames right but the network sees them only through noise, so the made
+    frames next to them join with a jump (twice the usual joint speed, measured); this spreads the jump
+    over frames where it does not show. Pose and height channels only: the root's steps are its own."""
+    layout = FeatureLayout.from_dim(raw.shape[-1])
+    channels = np.zeros(raw.shape[-1], bool)
+    channels[layout.root_height] = channels[layout.rotations] = True
+    out = np.array(raw, np.float64, copy=True)
+    frames = len(held)
+    free = np.flatnonzero(~held)
+    runs = np.split(free, np.flatnonzero(np.diff(free) > 1) + 1) if free.size else []
+    for run in runs:
+        span = max(1, min(SEAM_FRAMES, (len(run) + 1) // 2))
+        for edge, inward, outward in ((run[0], 1, -1), (run[-1], -1, 1)):
+            kept = edge + outward
+            if not 0 <= kept < frames or not held[kept]:
+                continue
+            before = kept + outward
+            velocity = raw[kept] - raw[before] if 0 <= before < frames and held[before] else 0.0
+            offset = raw[kept] + velocity - raw[edge]  # the held course carried one frame on, minus the made
+            for i in range(span):
+                weight = 0.5 * (1 + np.cos(np.pi * i / span))
+                out[edge + inward * i, channels] += weight * offset[channels]
+    return out
 
 
 def kept_error(made: Motion, given: Motion, frames: np.ndarray, joints: list[int], height: float) -> float:
