@@ -155,6 +155,13 @@ def placement(raw: np.ndarray, constraint: Constraint) -> tuple[np.ndarray, floa
     return np.asarray(placed[0].position) - here, float(heading[0])
 
 
+def root_at(raw: np.ndarray, constraint: Constraint, frame: int) -> tuple[np.ndarray, float]:
+    """Root ground position (x, z) and heading at `frame` of a raw clip (F, D) placed on its keys."""
+    position, heading = placement(raw, constraint)
+    turns, root = root_trajectory(torch.from_numpy(np.asarray(raw, np.float64)), position, heading)
+    return root[frame, [0, 2]].numpy(), float(turns[frame])
+
+
 # ---------------------------------------------------------------- masked sampling
 
 
@@ -353,13 +360,16 @@ def inbetween_constraint(
     before, after = context_frames(window, gap, a.num_frames, b.num_frames)
     fa, fb = encode(a, profile), encode(b, profile)
     layout = FeatureLayout(a.skeleton.num_joints)
-    frames = before + gap + after
+    # Frames past B, made and dropped, where the whole is shorter than the windows the model learned.
+    frames = max(window, before + gap + after)
     known = np.zeros((frames, layout.dim), np.float32)
     mask = np.zeros((frames, layout.dim), bool)
     known[:before], mask[:before] = fa[-before:], True
-    known[before + gap :], mask[before + gap :] = fb[:after], True
+    end = before + gap + after
+    known[before + gap : end], mask[before + gap : end] = fb[:after], True
+    free = [before - 1] + ([end - 1] if after == b.num_frames else [])  # steps into the gap, or past B
     for channels in (layout.root_vel, layout.heading_vel):
-        mask[before - 1, channels] = False
+        mask[free, channels] = False
     end_a, end_b = start_pose(a.slice(a.num_frames - 1, a.num_frames), profile), start_pose(b, profile)
     keys = [RootKey(before - 1, tuple(end_a[0]), end_a[1])]
     if not place:

@@ -491,7 +491,7 @@ class StyledGenerator(Pipeline):
         """`inbetween`'s work on a checked request."""
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise WalkdiffError(f"--frames: the gap must be at least 1 frame, got {frames!r}")
-        clip_a, clip_b = self.source(a, "A"), self.source(b, "B")
+        clip_a, clip_b = self.source(a, "A", 1), self.source(b, "B", 1)
         model, profile = self.model, self.model.profile
         constraint, before, after = editing.inbetween_constraint(
             clip_a, clip_b, frames, profile, model.spec["window"], place
@@ -499,21 +499,14 @@ class StyledGenerator(Pipeline):
         started = time.perf_counter()
         raw = self._masked(request, constraint, seed, 1)[0]
         if place:  # B turned and moved to where the fill ends
-            at = before + frames
-            heading, root = editing.root_trajectory(
-                torch.from_numpy(raw)[None],
-                None,
-                editing.placement_heading(torch.from_numpy(raw)[None], constraint.keys),
-            )
-            position, _ = editing.placement(raw, constraint)
-            clip_b = editing.turned(
-                clip_b, profile, root[0, at, [0, 2]].numpy() + position, float(heading[0, at])
-            )
+            clip_b = editing.turned(clip_b, profile, *editing.root_at(raw, constraint, before + frames))
+        end = before + frames + after
         kept = _joined(
             [clip_a.slice(clip_a.num_frames - before, clip_a.num_frames), frames, clip_b.slice(0, after)]
+            + ([constraint.frames - end] if constraint.frames > end else [])
         )
-        held = np.ones(constraint.frames, bool)
-        held[before : before + frames] = False
+        held = np.zeros(constraint.frames, bool)
+        held[:before] = held[before + frames : end] = True
         motion = editing.finish(raw, constraint, model.skeleton, profile, self.fps, kept, held, [], fix_feet)
         check_finite([motion], request.sampling)
         gap = motion.slice(before, before + frames)
