@@ -43,6 +43,7 @@ from walkdiff.motion.posed_frames import subtree
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import (
     FeatureLayout,
+    contact_state,
     decode,
     encode,
     root_trajectory,
@@ -256,8 +257,13 @@ def finish(
     raw = smooth_seams(raw, kept_frames)
     motion = decode(raw, skeleton, 1.0 / fps, position, heading)
     if pin_feet and (~kept_frames).any():
-        contacts = raw[:, FeatureLayout(skeleton.num_joints).contacts]
-        motion = fix_feet(motion, contacts, profile.contacts, held=kept_frames)
+        # A foot is pinned where the model says it is planted, and also wherever it is down on the floor
+        # (the rule skating is judged by): a made foot skimming the floor beside a kept one slides.
+        spec = profile.contacts
+        feet = motion_world_positions(motion)[:, [skeleton.index(n) for n in spec.joints]]
+        low, _ = contact_state(feet, fps, spec)
+        contacts = np.maximum(raw[:, FeatureLayout(skeleton.num_joints).contacts], low)
+        motion = fix_feet(motion, contacts, spec, held=kept_frames)
     if kept is None:
         return motion
     rotations, positions = motion.rotations.copy(), motion.positions.copy()
