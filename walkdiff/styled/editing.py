@@ -539,7 +539,10 @@ def kept_joints(keep, skeleton: Skeleton) -> list[int]:
 
 
 def _legs(skeleton: Skeleton) -> list[int]:
-    hmap = humanoid_map(skeleton)
+    try:
+        hmap = humanoid_map(skeleton)
+    except WalkdiffError as error:
+        raise WalkdiffError(f"--keep legs or upper-body: {error.reason}; name the joints to keep") from None
     out = set(path_between(skeleton, 0, skeleton.index(hmap.pelvis)))
     for side in ("left", "right"):
         thigh = skeleton.index(getattr(hmap, f"{side}_thigh"))
