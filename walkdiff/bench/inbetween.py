@@ -47,7 +47,7 @@ class HeldOut:
     """A generator with its held-out test clips (canonical, decoded from the data module's features) and
     an evaluator scoring windows of them."""
 
-    def __init__(self, ckpt: str | Path, evaluator: str | Path):
+    def __init__(self, ckpt: str | Path, evaluator: str | Path, splits: tuple[str, ...] = ("test",)):
         from walkdiff.data.datamodule import MotionDataModule, data_settings
         from walkdiff.evaluation.scorer import MotionScorer, load_evaluator, window_set
 
@@ -55,7 +55,12 @@ class HeldOut:
         model = self.generator.model
         self.skeleton, self.profile, self.fps = model.skeleton, model.profile, self.generator.fps
         data = MotionDataModule(**data_settings(read_checkpoint(ckpt, "generator")))
-        test = data.split_features("test")
+        unknown = [s for s in splits if s not in ("test", "val")]
+        if unknown or not splits:
+            raise WalkdiffError(
+                f"--split: expected test, val or test,val (held-out clips), got {','.join(splits)}"
+            )
+        test = [clip for split in splits for clip in data.split_features(split)]
         styles = list(model.spec["styles"])
         self.clips = [
             (styles[info.style], name, decode(features, self.skeleton, 1.0 / self.fps))
@@ -220,10 +225,12 @@ def bench_inbetween(
     resamples: int = 1000,
     repeats: int = 5,
     fix_feet: bool = True,
+    splits: tuple[str, ...] = ("test",),
 ) -> dict:
     """Every gap's table (see the module docstring), the timing of a 45-frame fill, written to `out`."""
-    held = HeldOut(ckpt, evaluator)
+    held = HeldOut(ckpt, evaluator, splits)
     result = {
+        "splits": list(splits),
         "checkpoint": str(ckpt), "evaluator": str(evaluator), "context": context, "per_clip": per_clip,
         "sampler": sampler, "steps": steps, "seed": seed, "fix_feet": fix_feet, "test_clips": len(held.clips),
         "gaps": {},
@@ -345,10 +352,11 @@ def bench_edit(
     sampler: str = "ddpm",
     steps: int | None = None,
     resamples: int = 1000,
+    splits: tuple[str, ...] = ("test",),
 ) -> dict:
     """Per kept part: the kept joints' largest error, and the asked style's recognition in the edited
     clips (each test clip edited into the next style of the model's list) beside real windows' own."""
-    held = HeldOut(ckpt, evaluator)
+    held = HeldOut(ckpt, evaluator, splits)
     styles = list(held.generator.styles)
     clips = [(i, c) for i, c in enumerate(held.clips) if c[2].num_frames >= held.window]
     stride = max(1, held.window // 2)

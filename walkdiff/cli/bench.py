@@ -504,6 +504,11 @@ def edit_bench_options(b: argparse.ArgumentParser) -> None:
     b.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
     b.add_argument("--seed", type=count(0), default=0)
     b.add_argument("--resamples", type=count(1), default=1000, help="bootstrap resamples (default 1000)")
+    b.add_argument(
+        "--split",
+        default="test",
+        help="held-out clips of the checkpoint's data: test (default), val or test,val",
+    )
 
 
 def add_inbetween(bench) -> None:
@@ -526,6 +531,7 @@ def run_inbetween(args: argparse.Namespace) -> None:
     result = bench_inbetween(
         args.ckpt, args.evaluator, args.out, frame_counts(args.gaps, "--gaps"), args.context, args.per_clip,
         args.seed, args.sampler, args.steps, args.resamples, args.repeats, args.fix_feet,
+        tuple(args.split.split(",")),
     )  # fmt: skip
     print("\n".join(format_inbetween(result)))
 
@@ -546,5 +552,5 @@ def run_edit_bench(args: argparse.Namespace) -> None:
 
     bench_edit(
         args.ckpt, args.evaluator, args.out, tuple(args.keep.split(",")), args.seed, args.sampler, args.steps,
-        args.resamples,
+        args.resamples, tuple(args.split.split(",")),
     )  # fmt: skip
