@@ -226,11 +226,15 @@ def bench_inbetween(
     repeats: int = 5,
     fix_feet: bool = True,
     splits: tuple[str, ...] = ("test",),
+    resample: int = 0,
 ) -> dict:
-    """Every gap's table (see the module docstring), the timing of a 45-frame fill, written to `out`."""
+    """Every gap's table (see the module docstring), the timing of a 45-frame fill, written to `out`.
+    `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's, by default)."""
     held = HeldOut(ckpt, evaluator, splits)
+    held.generator.resample = resample
     result = {
         "splits": list(splits),
+        "resample": resample,
         "checkpoint": str(ckpt), "evaluator": str(evaluator), "context": context, "per_clip": per_clip,
         "sampler": sampler, "steps": steps, "seed": seed, "fix_feet": fix_feet, "test_clips": len(held.clips),
         "gaps": {},

@@ -522,6 +522,10 @@ def add_inbetween(bench) -> None:
     b.add_argument("--per-clip", type=count(1), default=3, help="gaps cut per clip at most (default 3)")
     b.add_argument("--repeats", type=count(1), default=5, help="timed 45-frame fills (default 5)")
     b.add_argument("--no-fix-feet", dest="fix_feet", action="store_false", help="fills with feet as sampled")
+    b.add_argument(
+        "--resample", type=count(0), default=0,
+        help="RePaint resampling: each step of the noisier half taken this many more times (default 0)",
+    )  # fmt: skip
     b.set_defaults(run=run_inbetween)
 
 
@@ -531,7 +535,7 @@ def run_inbetween(args: argparse.Namespace) -> None:
     result = bench_inbetween(
         args.ckpt, args.evaluator, args.out, frame_counts(args.gaps, "--gaps"), args.context, args.per_clip,
         args.seed, args.sampler, args.steps, args.resamples, args.repeats, args.fix_feet,
-        tuple(args.split.split(",")),
+        tuple(args.split.split(",")), args.resample,
     )  # fmt: skip
     print("\n".join(format_inbetween(result)))
 

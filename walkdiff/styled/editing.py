@@ -198,9 +198,11 @@ def masked_sample(
     generator: torch.Generator | None,
     overlap: int,
     progress=False,
+    resample: int = 0,
 ) -> np.ndarray:
     """Raw features (B, F, D) (B: the batch of `style`) made around the constraint's known channels and
-    through its root keys; the known channels exactly as given."""
+    through its root keys; the known channels exactly as given. `resample`: RePaint's resampling, each
+    step of the noisier half taken that many more times from its result noised back (DDPM and DDIM)."""
     batch, frames = style.shape[0], constraint.frames
     window, diffusion, normalizer = model.spec["window"], model.diffusion, model.normalizer
     jumps = model.jumps(sampling.name, sampling.steps, sampling.eta)
@@ -227,13 +229,46 @@ def masked_sample(
     mask = torch.from_numpy(constraint.mask).expand(batch, -1, -1).to(device)
     table = sampling.table(diffusion)
     shape = (batch, frames, model.spec["feature_dim"])
-    x = run_steps(
-        projected if len(keys) > 1 else model_fn, diffusion, shape, table, generator=generator,
-        inpaint=(mask, known), progress=progress,
-    )  # fmt: skip
+    fn = projected if len(keys) > 1 else model_fn
+    if resample and not any(table.prev_coef):
+        x = resampled_steps(fn, diffusion, shape, table, mask, known, generator, resample, progress)
+    else:
+        x = run_steps(
+            fn, diffusion, shape, table, generator=generator, inpaint=(mask, known), progress=progress
+        )
     raw = normalizer.denormalize(x).double().cpu()
     raw = torch.where(mask.cpu(), torch.from_numpy(constraint.known).double(), raw)
     return project_root(raw, keys, free_step, free_turn).numpy()
+
+
+@torch.no_grad()
+def resampled_steps(model_fn, diffusion, shape, table, mask, known, generator, resample: int, progress=False):
+    """`run_steps` with known channels replaced at every step, and RePaint's resampling (Lugmayr et al.
+    2022): in the noisier half of the steps, each step's result is noised back to the step's own level and
+    the step taken again `resample` times, so the made channels and the known ones agree before the
+    detail is made."""
+    from walkdiff.diffusion.samplers import randn_like
+
+    device = diffusion.betas.device
+    x = randn_like(torch.empty(shape, device=device), generator)
+    abar = diffusion.alphas_cumprod64().tolist()
+    total, held = len(table.timesteps), mask.bool()
+    for k, t in enumerate(table.timesteps):
+        times = torch.full((shape[0],), t, device=device)
+        again = resample if t >= diffusion.num_timesteps // 2 and k + 1 < total else 0
+        for u in range(again + 1):
+            noisy = known * table.sqrt_abar[k] + randn_like(x, generator) * table.sqrt_one_minus_abar[k]
+            x = torch.where(held, noisy, x)
+            step = x * table.x_coef[k] + model_fn(x, times) * table.out_coef[k]
+            if table.sigma[k] > 0:
+                step = step + randn_like(x, generator) * table.sigma[k]
+            if u < again:  # back to step k's level: q(x_t | x_s) with abar_t / abar_s
+                ratio = abar[t] / abar[table.timesteps[k + 1]]
+                x = step * ratio**0.5 + randn_like(x, generator) * (1 - ratio) ** 0.5
+        x = step
+        if callable(progress):
+            progress(k + 1, total)
+    return torch.where(held, known, x)
 
 
 # ---------------------------------------------------------------- from features to the clip

@@ -22,6 +22,8 @@ from walkdiff.styled.generation import check_finite
 class Edits:
     """What `StyledGenerator` does for the edits, on a request it has checked (`request`)."""
 
+    resample = 0  # RePaint resampling of the edits' sampling (editing.masked_sample)
+
     def fill(
         self, request, a, b, frames: int, seed: int = 0, place: bool = False,
         fill_only: bool = False, fix_feet: bool = True,
@@ -154,7 +156,7 @@ class Edits:
         with bar:
             return editing.masked_sample(
                 self.model, constraint, _batch(request.style, num), _batch(request.content, num),
-                request.sampling, generator, request.overlap, step_hook(bar, 1),
+                request.sampling, generator, request.overlap, step_hook(bar, 1), self.resample,
             )  # fmt: skip
 
 
