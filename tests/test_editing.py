@@ -67,6 +67,11 @@ def test_inbetween_keeps_a_and_b_exactly_and_fills_the_gap(styled, clips):
     speed = np.linalg.norm(np.diff(made, axis=0), axis=-1).mean(-1)
     assert max(speed[39], speed[59]) < 3 * np.percentile(speed[40:59], 90)
 
+    model.resample = 1  # RePaint's resampling: the same guarantees
+    again = model.inbetween(a, b, frames=20, style="old", seed=1, **FAST)
+    assert again.extra["kept_error"] < TOLERANCE and not np.allclose(again.positions[40:60], fill)
+    model.resample = 0
+
     only = model.inbetween(a, b, frames=20, style="old", seed=1, fill_only=True, **FAST)
     assert only.num_frames == 20
     np.testing.assert_allclose(only.positions, fill, atol=1e-6 * height)
