@@ -68,7 +68,7 @@ def sample(
     """`walkdiff sample`: `StyledGenerator.sample`'s clips as BVH (+ GIF previews of their first
     `preview_seconds`) and `manifest.json` in `out`; returns the manifest. `request`: the style, content,
     sampler, windows and rig, as `StyledGenerator.request` takes them; `keys`: what the clips pass
-    through (styled/editing.py `read_keys`)."""
+    through (styled/keys.py `read_keys`)."""
     check_sample_size(num, frames)
     request = specs_first(request)
     cap = PreviewCap(preview_seconds) if gif else None

@@ -15,6 +15,7 @@ from walkdiff.models.pipeline import Generated
 from walkdiff.motion.representation import FeatureLayout
 from walkdiff.motion.skeleton import Motion
 from walkdiff.styled import editing
+from walkdiff.styled import keys as keyframes
 from walkdiff.styled.generation import batch_of as _batch
 from walkdiff.styled.generation import check_finite
 
@@ -78,8 +79,8 @@ class Edits:
         if request.timeline is not None:
             raise WalkdiffError("--keys: not with a style timeline; give one style (or a mix)")
         profile = self.model.profile
-        found = editing.read_keys(keys, profile, frames)
-        constraint = editing.keys_constraint(found, frames, profile)
+        found = keyframes.read_keys(keys, profile, frames)
+        constraint = keyframes.keys_constraint(found, frames, profile)
         started = time.perf_counter()
         raws = self._masked(request, constraint, seed, num)
         layout = FeatureLayout(self.model.skeleton.num_joints)

@@ -156,7 +156,7 @@ class StyledGenerator(Pipeline, Edits):
         too (0: their code alone). `sampler`: a name with `steps`, `eta`, `guidance`, or a SamplerChoice.
         `to` (+ `to_map`): a rig to play them on. `fix_feet`: pin feet during contacts (default: where
         clips' statistics are matched). `keys`: poses, root positions or headings the clips pass through
-        (a BVH of key poses, 'FILE.bvh@F0,F1,...', a JSON file or a list of dicts: `editing.read_keys`);
+        (a BVH of key poses, 'FILE.bvh@F0,F1,...', a JSON file or a list of dicts: styled/keys.py);
         the style may then be left out. Returns the takes with the settings used (`Generated`)."""
         check_sample_size(num, frames)
         request = self.request(
