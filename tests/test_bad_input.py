@@ -47,6 +47,8 @@ CHECKPOINT_USERS = [
     ["export", "--out", "exported"],
     ["control"],
     ["play", "--out", "o", "--script", "s.jsonl"],
+    ["inbetween", "text.bvh", "text.bvh", "--frames", "5", "--out", "o.bvh"],
+    ["edit", "text.bvh", "--keep", "legs", "--out", "o.bvh", *STYLE],
 ]
 
 CASES = {
@@ -185,6 +187,15 @@ CASES = {
         ["checkpoint", "upgrade", "garbage.ckpt", "--out", "garbage.ckpt", "--trust"],
         ["--out", "another file"],
     ),
+    "inbetween into a file that is not BVH": (
+        ["inbetween", "text.bvh", "text.bvh", "--frames", "5", "--ckpt", "g", "--out", "o.txt"],
+        ["--out", "OUT.bvh", "o.txt"],
+    ),
+    "inbetween a word for frames": (
+        ["inbetween", "text.bvh", "text.bvh", "--frames", "ten", "--ckpt", "g", "--out", "o.bvh"],
+        ["--frames"],
+    ),
+    "edit without --keep": (["edit", "text.bvh", "--ckpt", "g", "--out", "o.bvh"], ["--keep"]),
     "an unknown option": (["sample", "--ckpt", "g", "--out", "o", *STYLE, "--colour", "red"], ["--colour"]),
 }
 for command in CHECKPOINT_USERS:

@@ -16,7 +16,7 @@ def add_parsers(sub) -> None:
     bench = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     for add in (
         add_data, add_train, add_gesture, add_stream, add_memory, add_view, add_walk, add_distill, add_sample,
-        add_protocol, add_style, add_retarget, add_play, add_turns, add_ablate,
+        add_protocol, add_style, add_retarget, add_play, add_turns, add_ablate, add_inbetween, add_edit,
     ):  # fmt: skip
         add(bench)
     for b in bench.choices.values():
@@ -506,3 +506,70 @@ def run_turns(args: argparse.Namespace) -> None:
         args.root,
     )
     print("\n".join(format_turns(result)))
+
+
+def edit_bench_options(b: argparse.ArgumentParser) -> None:
+    """What `bench inbetween` and `bench edit` share."""
+    b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint (its test split is used)")
+    b.add_argument(
+        "--evaluator", required=True, help="MotionEvaluator checkpoint (style recognition, skating)"
+    )
+    b.add_argument("--out", required=True, help="JSON file for the results")
+    b.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help="sampler (default ddpm, as the API)")
+    b.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    b.add_argument("--seed", type=count(0), default=0)
+    b.add_argument("--resamples", type=count(1), default=1000, help="bootstrap resamples (default 1000)")
+    b.add_argument(
+        "--split",
+        default="test",
+        help="held-out clips of the checkpoint's data: test (default), val or test,val",
+    )
+
+
+def add_inbetween(bench) -> None:
+    b = bench.add_parser(
+        "inbetween",
+        help="in-betweening on held-out clips: L2P, L2Q, NPSS beside interpolation and zero velocity",
+    )
+    edit_bench_options(b)
+    b.add_argument("--gaps", default="5,15,30,45", help="gap lengths in frames (default 5,15,30,45)")
+    b.add_argument("--context", type=count(1), default=10, help="frames of past context (default 10)")
+    b.add_argument("--per-clip", type=count(1), default=3, help="gaps cut per clip at most (default 3)")
+    b.add_argument("--repeats", type=count(1), default=5, help="timed 45-frame fills (default 5)")
+    b.add_argument("--no-fix-feet", dest="fix_feet", action="store_false", help="fills with feet as sampled")
+    b.add_argument(
+        "--resample", type=count(0), default=0,
+        help="RePaint resampling: each step of the noisier half taken this many more times (default 0)",
+    )  # fmt: skip
+    b.set_defaults(run=run_inbetween)
+
+
+def run_inbetween(args: argparse.Namespace) -> None:
+    from walkdiff.bench.inbetween import bench_inbetween, format_inbetween
+
+    result = bench_inbetween(
+        args.ckpt, args.evaluator, args.out, frame_counts(args.gaps, "--gaps"), args.context, args.per_clip,
+        args.seed, args.sampler, args.steps, args.resamples, args.repeats, args.fix_feet,
+        tuple(args.split.split(",")), args.resample,
+    )  # fmt: skip
+    print("\n".join(format_inbetween(result)))
+
+
+def add_edit(bench) -> None:
+    b = bench.add_parser(
+        "edit", help="partial-body edits of held-out clips: kept joints' error, style recognised"
+    )
+    edit_bench_options(b)
+    b.add_argument(
+        "--keep", default="legs,upper-body", help="kept parts, one edit each (default legs,upper-body)"
+    )
+    b.set_defaults(run=run_edit_bench)
+
+
+def run_edit_bench(args: argparse.Namespace) -> None:
+    from walkdiff.bench.inbetween import bench_edit
+
+    bench_edit(
+        args.ckpt, args.evaluator, args.out, tuple(args.keep.split(",")), args.seed, args.sampler, args.steps,
+        args.resamples, tuple(args.split.split(",")),
+    )  # fmt: skip

@@ -10,6 +10,7 @@ from walkdiff.cli.options import (
     keyword_options,
     rig_options,
     sampler_options,
+    style_options,
 )
 from walkdiff.common.arguments import count, number
 
@@ -24,6 +25,12 @@ def add_parsers(sub) -> None:
     p.add_argument(
         "--transition", type=number(0), default=1.0,
         help="with a --style timeline (neutral@0,old@4s): seconds each change is ramped over (default 1)",
+    )  # fmt: skip
+    p.add_argument(
+        "--keys", default=None, metavar="KEYS",
+        help="poses and root places the clips pass through: a BVH of key poses on the model's skeleton "
+        "(FILE.bvh@F0,F1,... with their frame numbers; without: spread over the clip) or a JSON of keys "
+        "(docs/editing.md); --style may then be left out",
     )  # fmt: skip
     p.set_defaults(run=run_generation)
 
@@ -41,20 +48,7 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     """What `sample` and `transfer` share: the model, the style, the sampler and how windows are joined."""
     p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument(
-        "--style", default=None,
-        help="a style, a mix (angry:0.7,old:0.3), or with sample a timeline: neutral@0,old@4s,angry+old@8s",
-    )  # fmt: skip
-    p.add_argument(
-        "--style-clip", dest="style_clips", default=None, metavar="FILE[:WEIGHT],...",
-        help="take the style from example BVH clips on the model's skeleton (a model with a style encoder), "
-        "alone or mixed with --style (which then weighs 1)",
-    )  # fmt: skip
-    p.add_argument(
-        "--match-clips", type=number(0, 1), default=1.0, metavar="W",
-        help="how far the sample's pose statistics are moved to the example clips' (default 1: all the way; "
-        "0: their style code alone), times the clips' share of the weight",
-    )  # fmt: skip
+    style_options(p, "or with sample a timeline: neutral@0,old@4s,angry+old@8s")
     p.add_argument("--content", default="walk", help="content group (default walk)")
     p.add_argument("--seed", type=count(0), default=0)
     sampler_options(p, guidance=True)

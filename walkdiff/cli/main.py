@@ -7,14 +7,14 @@ import sys
 from pathlib import Path
 
 from walkdiff.callbacks.fit import lightning_cli
-from walkdiff.cli import bench, distill, evaluate, files, generate, gestures, live, model_files, walker
+from walkdiff.cli import bench, distill, edit, evaluate, files, generate, gestures, live, model_files, walker
 from walkdiff.common.arguments import Parser
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.threads import apply_threads, choose_threads
 
 LIGHTNING_VERBS = ("fit", "validate", "test")
 # In the order `walkdiff --help` lists their commands; each sets `run`, the handler of what it parsed.
-FAMILIES = (files, evaluate, generate, gestures, walker, live, distill, model_files, bench)
+FAMILIES = (files, evaluate, generate, edit, gestures, walker, live, distill, model_files, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

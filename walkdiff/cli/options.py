@@ -53,6 +53,25 @@ def sampler_options(
         p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
 
 
+def style_options(p: argparse.ArgumentParser, more: str = "") -> None:
+    """The style of a styled generator's request (models.style_spec.Style) as options: --style,
+    --style-clip and --match-clips, the same on `sample`, `transfer`, `inbetween` and `edit`."""
+    p.add_argument(
+        "--style", default=None,
+        help="a style or a mix (angry:0.7,old:0.3)" + (f", {more}" if more else ""),
+    )  # fmt: skip
+    p.add_argument(
+        "--style-clip", dest="style_clips", default=None, metavar="FILE[:WEIGHT],...",
+        help="take the style from example BVH clips on the model's skeleton (a model with a style encoder), "
+        "alone or mixed with --style (which then weighs 1)",
+    )  # fmt: skip
+    p.add_argument(
+        "--match-clips", type=number(0, 1), default=1.0, metavar="W",
+        help="how far the sample's pose statistics are moved to the example clips' (default 1: all the way; "
+        "0: their style code alone), times the clips' share of the weight",
+    )  # fmt: skip
+
+
 def frame_sampler_options(p: argparse.ArgumentParser) -> None:
     """Options of the per-frame sampler of DiffMotion and the path walker (no guidance)."""
     sampler_options(p, help=FRAME_SAMPLER_HELP)

@@ -94,9 +94,12 @@ class Pipeline:
         take = Take.from_canonical(motion, self.model.profile)
         return take if rig is None else take.retarget(rig)
 
-    def source(self, motion: Motion | Take | str | os.PathLike, what: str = "transfer") -> Motion:
+    def source(
+        self, motion: Motion | Take | str | os.PathLike, what: str = "transfer", min_frames: int = 2
+    ) -> Motion:
         """A clip to restyle or take a style from, as the model takes it: checked to be on its skeleton,
-        canonical, at its fps. `what` names the option in errors."""
+        canonical, at its fps. `what` names the option in errors; `min_frames`: 1 where a single pose
+        will do (the clips around a gap)."""
         path = None
         if isinstance(motion, Generated):  # a result of one take: that take
             motion = motion.take
@@ -114,7 +117,7 @@ class Pipeline:
         if abs(motion.fps - self.fps) > 1e-3 * self.fps:
             motion = resample(motion, self.fps)
         check_frames("--input", motion.num_frames, SAMPLE_BYTES_PER_FRAME)
-        if motion.num_frames < 2:  # one pose: no motion, and the root velocities it is made of are 0
+        if motion.num_frames < min_frames:  # one pose: no motion, and its root velocities are 0
             raise WalkdiffError(
                 f"{motion.num_frames} frame at the model's {self.fps:g} fps: expected at least 2 frames of "
                 "motion",

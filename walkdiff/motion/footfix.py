@@ -40,20 +40,26 @@ def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
-def _pin_offsets(position: np.ndarray, contact: np.ndarray) -> np.ndarray:
-    """(F, 3) horizontal offsets moving a joint onto the mean of each of its contact runs (0 elsewhere)."""
+def _pin_offsets(position: np.ndarray, contact: np.ndarray, held: np.ndarray | None = None) -> np.ndarray:
+    """(F, 3) horizontal offsets moving a joint onto the mean of each of its contact runs (0 elsewhere);
+    a run that reaches `held` frames (kept as given: an edit's) is pinned where the held frames have it."""
     offset = np.zeros_like(position)
     for start, stop in contact_runs(contact):
-        anchor = position[start:stop, [0, 2]].mean(axis=0)
+        run = slice(start, stop)
+        if held is not None and held[run].any():
+            run = np.flatnonzero(held[start:stop]) + start
+        anchor = position[run][:, [0, 2]].mean(axis=0)
         offset[start:stop, [0, 2]] = anchor - position[start:stop, [0, 2]]
     return offset
 
 
-def ankle_offsets(heel: np.ndarray, toe: np.ndarray, contacts: np.ndarray, blend: int) -> np.ndarray:
+def ankle_offsets(
+    heel: np.ndarray, toe: np.ndarray, contacts: np.ndarray, blend: int, held: np.ndarray | None = None
+) -> np.ndarray:
     """(F, 3) ankle offsets for one foot from heel and toe world positions (F, 3) and contacts (F, 2)."""
     heel_on, toe_on = contacts[:, 0] > 0.5, contacts[:, 1] > 0.5
     count = heel_on.astype(float) + toe_on
-    total = _pin_offsets(heel, heel_on) + _pin_offsets(toe, toe_on)
+    total = _pin_offsets(heel, heel_on, held) + _pin_offsets(toe, toe_on, held)
     offset = total / np.maximum(count, 1)[:, None]
     active = count > 0
     if not active.any() or blend <= 0:
@@ -152,8 +158,12 @@ def reach(
     return np.where(mask, out, rotations).astype(np.asarray(rotations).dtype)
 
 
-def fix_feet(motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int = 3) -> Motion:
-    """The clip with its feet pinned during contacts (F, 4), ordered as `spec.joints` (> 0.5: in contact)."""
+def fix_feet(
+    motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int = 3, held: np.ndarray | None = None
+) -> Motion:
+    """The clip with its feet pinned during contacts (F, 4), ordered as `spec.joints` (> 0.5: in contact).
+    `held` (F,) bool: frames an edit keeps as given; a contact that reaches them is pinned where they put
+    the foot, so the made frames join them without a slide."""
     skeleton = motion.skeleton
     contacts = np.asarray(contacts)
     if contacts.shape != (motion.num_frames, 4):
@@ -164,7 +174,9 @@ def fix_feet(motion: Motion, contacts: np.ndarray, spec: ContactSpec, blend: int
     rotations = motion.rotations
     joints = [skeleton.index(name) for name in spec.joints]
     for side, (heel, toe) in enumerate((joints[:2], joints[2:])):
-        offset = ankle_offsets(world[:, heel], world[:, toe], contacts[:, 2 * side : 2 * side + 2], blend)
+        offset = ankle_offsets(
+            world[:, heel], world[:, toe], contacts[:, 2 * side : 2 * side + 2], blend, held
+        )
         moved = np.abs(offset).sum(-1) > 0
         if moved.any():
             # The legs do not share joints below the pelvis, so each sees the world positions of the input.

@@ -62,16 +62,18 @@ def sample(
     preview_seconds: float = PREVIEW_SECONDS,
     overwrite: bool = False,
     device: str = "cpu",
+    keys=None,
     **request,
 ) -> dict:
     """`walkdiff sample`: `StyledGenerator.sample`'s clips as BVH (+ GIF previews of their first
     `preview_seconds`) and `manifest.json` in `out`; returns the manifest. `request`: the style, content,
-    sampler, windows and rig, as `StyledGenerator.request` takes them."""
+    sampler, windows and rig, as `StyledGenerator.request` takes them; `keys`: what the clips pass
+    through (styled/keys.py `read_keys`)."""
     check_sample_size(num, frames)
     request = specs_first(request)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
-    request = generator.request(style, **request)
+    request = generator.request(style, unstyled=keys is not None, **request)
     out = output_folder(out)
     stem = f"{request.label}_{request.content_name}"
     bvh = [out / f"{stem}_{i:03d}.bvh" for i in range(num)]
@@ -83,7 +85,10 @@ def sample(
     short = short_note(frames, generator.model.spec["window"], generator.fps)
     if short is not None:
         print(f"walkdiff: note: {short}", file=sys.stderr)
-    result = generator.make(request, num, frames, seed, ground, fix_feet)
+    if keys is None:
+        result = generator.make(request, num, frames, seed, ground, fix_feet)
+    else:
+        result = generator.keyed(request, keys, num, frames, seed, ground, fix_feet)
     started = time.perf_counter()
     with output_set(out):
         for path, take in zip(bvh, result.takes, strict=True):
@@ -91,6 +96,9 @@ def sample(
         if request.timeline is not None:
             plot_timeline(timeline_png, request.timeline, list(generator.styles), frames / generator.fps)
         files = {"files": [p.name for p in bvh]}
+        if keys is not None:
+            files["keys"] = {"source": str(keys), "kept_error_body_heights": result.extra["kept_error"],
+                             "root_key_error_body_heights": result.extra["root_key_error"]}  # fmt: skip
         result.timing["write_s"] = round(time.perf_counter() - started, 3)
         return _record(
             out / "manifest.json", {"command": "sample", "checkpoint": str(ckpt)}, result, files, cap

@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
@@ -26,6 +27,7 @@ from walkdiff.common.progress import progress, step_hook
 from walkdiff.diffusion import SamplerChoice, log_snr_timesteps, respace, run_steps, step_coefficients
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.representation import FeatureLayout, features_to_positions
+from walkdiff.motion.skeleton import Motion
 
 # Inpainted (known) region of a window: (mask, values), both (B, frames, D), as the samplers take them.
 Known = tuple[torch.Tensor, torch.Tensor]
@@ -46,6 +48,35 @@ class Sampling(SamplerChoice):
     def order(self) -> int:
         """Order of the solver step (step_coefficients): 2 for DPM-Solver++, 1 for DDPM and DDIM."""
         return 2 if self.name == "dpmpp" else 1
+
+
+def batch_of(labels: torch.Tensor, count: int) -> torch.Tensor:
+    """One style id () or mixing vector (S,), or one content id, repeated for a batch."""
+    return labels.expand(count, *labels.shape).clone()
+
+
+def check_finite(clips: list[Motion], sampling: Sampling) -> None:
+    """Refuse clips with NaN or infinite values, naming the setting that made them: no such clip is ever
+    returned or written (a BVH of NaN reads as motion in no program)."""
+    bad = [
+        i
+        for i, clip in enumerate(clips)
+        if not (np.isfinite(clip.rotations).all() and np.isfinite(clip.positions).all())
+    ]
+    if not bad:
+        return
+    which = (
+        f"clip {bad[0]}" if len(clips) == 1 else f"{len(bad)} of {len(clips)} clips, the first clip {bad[0]}"
+    )
+    if sampling.guidance != 1:
+        raise WalkdiffError(
+            f"--guidance {sampling.guidance:g} made non-finite motion (NaN or infinite values in {which}); "
+            "use a lower guidance (1: none; a few at most is useful)"
+        )
+    raise WalkdiffError(
+        f"the model made non-finite motion (NaN or infinite values in {which}, sampler {sampling.sampler}): "
+        "its network may have diverged in training; try another checkpoint"
+    )
 
 
 # ---------------------------------------------------------------- windows

@@ -38,13 +38,18 @@ from walkdiff.motion.representation import FeatureLayout, decode, encode, start_
 from walkdiff.motion.skeleton import Motion
 from walkdiff.retarget.take import Take
 from walkdiff.retarget.target_rig import TargetRig
+from walkdiff.styled.edits import Edits
 from walkdiff.styled.generation import (
     Sampling,
+    check_finite,
     generate_long,
     load_generator,
     noised_steps,
     resolve_windows,
     restyle,
+)
+from walkdiff.styled.generation import (
+    batch_of as _batch,
 )
 
 
@@ -89,30 +94,6 @@ def check_sample_size(num: int, frames: int) -> None:
         check_frames("--frames", frames, SAMPLE_BYTES_PER_FRAME, num)
 
 
-def check_finite(clips: list[Motion], sampling: Sampling) -> None:
-    """Refuse clips with NaN or infinite values, naming the setting that made them: no such clip is ever
-    returned or written (a BVH of NaN reads as motion in no program)."""
-    bad = [
-        i
-        for i, clip in enumerate(clips)
-        if not (np.isfinite(clip.rotations).all() and np.isfinite(clip.positions).all())
-    ]
-    if not bad:
-        return
-    which = (
-        f"clip {bad[0]}" if len(clips) == 1 else f"{len(bad)} of {len(clips)} clips, the first clip {bad[0]}"
-    )
-    if sampling.guidance != 1:
-        raise WalkdiffError(
-            f"--guidance {sampling.guidance:g} made non-finite motion (NaN or infinite values in {which}); "
-            "use a lower guidance (1: none; a few at most is useful)"
-        )
-    raise WalkdiffError(
-        f"the model made non-finite motion (NaN or infinite values in {which}, sampler {sampling.sampler}): "
-        "its network may have diverged in training; try another checkpoint"
-    )
-
-
 # The order of a sample manifest's settings.
 SAMPLE_SETTINGS = (
     "style", "style_clips", "match_clips", "timeline", "content", "num", "frames", "fps", "sampler", "steps",
@@ -128,12 +109,7 @@ def root_path_error(source: Motion, result: Motion) -> dict[str, float]:
     return {"mean": error, "walked": walked, "relative": error / walked if walked > 0 else float("nan")}
 
 
-def _batch(labels: torch.Tensor, count: int) -> torch.Tensor:
-    """One style id () or mixing vector (S,), or one content id, repeated for a batch."""
-    return labels.expand(count, *labels.shape).clone()
-
-
-class StyledGenerator(Pipeline):
+class StyledGenerator(Pipeline, Edits):
     """A trained StyledMotionDiffusion: `sample` makes styled motion of any length, `transfer` restyles a
     clip; both return `Take`s on the training files' skeleton and write nothing."""
 
@@ -170,6 +146,7 @@ class StyledGenerator(Pipeline):
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
         match_clips: float = MATCH_CLIPS,
+        keys=None,
     ) -> Generated:
         """`num` clips of `frames` frames, drawn together as `walkdiff sample` draws them: the same seed
         and settings give the same clips. `style`: a name, a mix ({'angry': 0.7, 'old': 0.3}, or
@@ -178,13 +155,80 @@ class StyledGenerator(Pipeline):
         Motions, Takes or (clip, weight) pairs); `match_clips`: how far their pose statistics are matched
         too (0: their code alone). `sampler`: a name with `steps`, `eta`, `guidance`, or a SamplerChoice.
         `to` (+ `to_map`): a rig to play them on. `fix_feet`: pin feet during contacts (default: where
-        clips' statistics are matched). Returns the takes with the settings used (`Generated`)."""
+        clips' statistics are matched). `keys`: poses, root positions or headings the clips pass through
+        (a BVH of key poses, 'FILE.bvh@F0,F1,...', a JSON file or a list of dicts: styled/keys.py);
+        the style may then be left out. Returns the takes with the settings used (`Generated`)."""
         check_sample_size(num, frames)
         request = self.request(
             style, content, sampler, steps, eta, guidance, overlap, blend, to, to_map, style_clips,
-            transition, match_clips,
+            transition, match_clips, unstyled=keys is not None,
         )  # fmt: skip
+        if keys is not None:
+            return self.keyed(request, keys, num, frames, seed, ground, fix_feet)
         return self.make(request, num, frames, seed, ground, fix_feet)
+
+    @python_api
+    def inbetween(
+        self,
+        a: Motion | Take | str | os.PathLike,
+        b: Motion | Take | str | os.PathLike,
+        frames: int,
+        style=None,
+        place: bool = False,
+        fill_only: bool = False,
+        content: str = "walk",
+        seed: int = 0,
+        sampler: str | SamplerChoice | dict = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        guidance: float = 1.0,
+        overlap: int | None = None,
+        fix_feet: bool = True,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
+        style_clips=None,
+        match_clips: float = MATCH_CLIPS,
+    ) -> Generated:
+        """`frames` frames from the end of clip `a` to the start of clip `b` (Motions, Takes or BVH files on
+        the model's skeleton), in `style` (as `sample` takes it; none: the model's own motion, led by the
+        clips). B stays where its file puts it, or with `place` where the fill brings it. The take is A,
+        the fill and B as one clip (A and B exactly as given), or with `fill_only` the fill alone;
+        `extra` holds the fill's frames and the kept frames' error in body heights."""
+        request = self.request(
+            style, content, sampler, steps, eta, guidance, overlap, None, to, to_map, style_clips,
+            match_clips=match_clips, unstyled=True,
+        )  # fmt: skip
+        return self.fill(request, a, b, frames, seed, place, fill_only, fix_feet)
+
+    @python_api
+    def edit(
+        self,
+        clip: Motion | Take | str | os.PathLike,
+        keep,
+        style=None,
+        content: str = "walk",
+        seed: int = 0,
+        sampler: str | SamplerChoice | dict = "ddpm",
+        steps: int | None = None,
+        eta: float = 0.0,
+        guidance: float = 1.0,
+        overlap: int | None = None,
+        ground: bool = True,
+        fix_feet: bool = True,
+        to: TargetRig | str | os.PathLike | Motion | None = None,
+        to_map=None,
+        style_clips=None,
+        match_clips: float = MATCH_CLIPS,
+    ) -> Generated:
+        """`clip` with what `keep` does not name made anew in `style`: `keep` is 'legs', 'upper-body',
+        'root' or joint names (text with commas, or a list); the kept joints' rotations (and the root's
+        path where the root is kept) come out exactly as given. `extra["kept_error"]`: their largest
+        distance from the input, in body heights."""
+        request = self.request(
+            style, content, sampler, steps, eta, guidance, overlap, None, to, to_map, style_clips,
+            match_clips=match_clips, unstyled=True,
+        )  # fmt: skip
+        return self.edited(request, clip, keep, seed, ground, fix_feet)
 
     @python_api
     def transfer(
@@ -237,18 +281,25 @@ class StyledGenerator(Pipeline):
         style_clips=None,
         transition: float = DEFAULT_TRANSITION,
         match_clips: float = MATCH_CLIPS,
+        unstyled: bool = False,
     ) -> Request:
         """What `sample` or `transfer` will make, checked against the model before any work, or a
         WalkdiffError naming what is wrong. Example clips give their code, and their statistics matched at
-        `match_clips` times their share of the weight (a `style` label weighs 1)."""
+        `match_clips` times their share of the weight (a `style` label weighs 1). `unstyled`: no style
+        may be given (the edits: the model's unconditional motion, led by the kept parts)."""
         spec = Style.of(style, style_clips, match_clips, transition)
         sampling = Sampling.of(sampler, steps, eta, guidance)
         check_match_clips(spec.match)
-        if spec.labels is None and not spec.clips:
-            raise WalkdiffError("no style given: pass --style NAME[,...], --style-clip FILE[,...] or both")
         content_id = self.model.label_ids([content], "content")[0]
         overlap, blend = resolve_windows(self.model.spec["window"], overlap, blend)
         rig = TargetRig.of(to, to_map)
+        if spec.labels is None and not spec.clips:
+            if not unstyled:
+                raise WalkdiffError(
+                    "no style given: pass --style NAME[,...], --style-clip FILE[,...] or both"
+                )
+            null = torch.tensor(self.model.ema.module.style.null_id, device=self.model.device)
+            return Request(spec, null, "unstyled", content, content_id, sampling, overlap, blend, rig)
         timeline = None if spec.labels is None else parse_timeline(self.model, spec.labels, spec.transition)
         if timeline is not None:
             if spec.clips:
