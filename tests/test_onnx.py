@@ -170,7 +170,7 @@ def test_runtime_refuses_what_it_cannot_run(walker_ckpt, xia_dir):
     frames = OnnxFrames(model, FEW)
     with pytest.raises(WalkdiffError, match="made for ddim-4-eta1, not ddim-2"):
         frames.start_streams(1, SamplerChoice("ddim", 2, 1.0))
-    with pytest.raises(WalkdiffError, match="torch runtime"):
+    with pytest.raises(WalkdiffError, match="need --runtime torch"):
         controller(frames, "old", sampler="ddim", steps=4).command(style_clips=str(walker_clip))
 
 
