@@ -170,7 +170,7 @@ def test_runtime_refuses_what_it_cannot_run(walker_ckpt, xia_dir):
     frames = OnnxFrames(model, FEW)
     with pytest.raises(WalkdiffError, match="made for ddim-4-eta1, not ddim-2"):
         frames.start_streams(1, SamplerChoice("ddim", 2, 1.0))
-    with pytest.raises(WalkdiffError, match="torch runtime"):
+    with pytest.raises(WalkdiffError, match="need --runtime torch"):
         controller(frames, "old", sampler="ddim", steps=4).command(style_clips=str(walker_clip))
 
 
@@ -450,3 +450,184 @@ def numbers(tree) -> list:
     if isinstance(tree, list):
         return [x for v in tree for x in numbers(v)]
     return [tree] if isinstance(tree, float | int) and not isinstance(tree, bool) else []
+
+
+# ---------------------------------------------------------------- --runtime onnx on the live commands
+
+
+def world_positions(bvh) -> np.ndarray:
+    from walkdiff.motion.bvh import read_bvh
+    from walkdiff.motion.kinematics import motion_world_positions
+
+    return motion_world_positions(read_bvh(bvh))
+
+
+def live_runs(monkeypatch, capsys, tmp_path, name: str, argv: list[str], stdin: bytes | None, bvh: str):
+    """`argv` run with --runtime torch, then onnx (stdin fed each time): each run's BVH `bvh` (under its
+    --out) as world joint positions, and its last printed line."""
+    import io
+
+    made, last = {}, {}
+    capsys.readouterr()
+    for runtime in ("torch", "onnx"):
+        out = tmp_path / f"{name}_{runtime}"
+        if stdin is not None:
+            monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(stdin)))
+        assert main([*argv, "--out", str(out), "--runtime", runtime]) == 0
+        printed = capsys.readouterr().out.strip()
+        last[runtime] = json.loads(printed.splitlines()[-1] if stdin is not None else printed)
+        made[runtime] = world_positions(out / bvh)
+    return made, last
+
+
+def assert_same_frames(made: dict, what: str) -> None:
+    torch_positions, onnx_positions = made["torch"], made["onnx"]
+    assert torch_positions.shape == onnx_positions.shape and len(torch_positions) > 10, what
+    assert np.abs(np.diff(torch_positions, axis=0)).max() > 1e-3 * height(torch_positions), (
+        f"{what}: nothing moves, nothing to compare"
+    )
+    error = np.abs(onnx_positions - torch_positions).max()
+    print(f"{what}: largest difference {error:.3g}, body height {height(torch_positions):.3g}")
+    assert error <= TOLERANCE * height(torch_positions), (what, error)
+
+
+def test_control_and_play_run_on_onnx_runtime(walker_ckpt, tmp_path, monkeypatch, capsys):
+    """`control` (JSON lines in) and `play --script` write the same take with --runtime onnx as with
+    torch for the same seed: joint positions within 1e-4 of the body's height."""
+    lines = [{"direction": [1, 0], "speed": 1.0, "frames": 40}, {"style": "neutral", "frames": 30},
+             {"speed": 0.4, "direction": [0, 1], "frames": 30}]  # fmt: skip
+    stdin = "".join(json.dumps(line) + "\n" for line in lines).encode()
+    argv = ["control", "--ckpt", str(walker_ckpt), "--style", "old", "--seed", "1", "--steps", "4"]
+    made, last = live_runs(monkeypatch, capsys, tmp_path, "control", argv, stdin, "take.bvh")
+    assert last["onnx"]["frames"] == 100
+    assert json.loads((tmp_path / "control_onnx" / "take.json").read_text())["runtime"] == "onnx"
+    assert_same_frames(made, "control")
+
+    script = tmp_path / "script.jsonl"
+    events = [{"t": 0, "key": "ArrowUp"}, {"t": 0.5, "key": "ArrowLeft", "down": True},
+              {"t": 1.5, "key": "ArrowLeft", "down": False}, {"t": 2, "style": "neutral"},
+              {"t": 3.5}]  # fmt: skip
+    script.write_text("".join(json.dumps(e) + "\n" for e in events))
+    argv = ["play", "--ckpt", str(walker_ckpt), "--script", str(script), "--seed", "2", "--steps", "4"]
+    made, last = live_runs(monkeypatch, capsys, tmp_path, "play", argv, None, "take.bvh")
+    assert last["onnx"]["runtime"] == "onnx" and last["torch"]["runtime"] == "torch"
+    assert_same_frames(made, "play --script")
+
+
+def test_streams_run_on_onnx_runtime(walker_ckpt, gesture_ckpt, tmp_path, monkeypatch, capsys):
+    """`walk --stream` and `gesture --stream` write the same BVH with --runtime onnx as with torch for the
+    same seed; a graph exported beforehand (--onnx DIR) makes the same frames as one exported at the
+    start."""
+    points = [[0.0, 0.0], [0.0, 0.6], [0.4, 1.2], [1.1, 1.6], [1.8, 1.7]]  # metres
+    stdin = "".join(json.dumps({"x": x, "z": z}) + "\n" for x, z in points).encode()
+    argv = ["walk", "--stream", "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--seed", "2",
+            "--path", "-", "--sampler", "ddim", "--steps", "4", "--eta", "1"]  # fmt: skip
+    made, last = live_runs(monkeypatch, capsys, tmp_path, "walk", argv, stdin, "old_stdin.bvh")
+    assert last["onnx"]["runtime"] == "onnx" and last["onnx"]["done"]
+    assert_same_frames(made, "walk --stream")
+
+    model = load_model(gesture_ckpt)
+    samples = np.random.default_rng(3).normal(0, 0.2, 2 * model.spec["sample_rate"])
+    pcm = (np.clip(samples, -1, 1 - 1 / 32768) * 32768).astype("<i2").tobytes()
+    few = ["--sampler", "ddim", "--steps", "4", "--eta", "1"]
+    argv = ["gesture", "--stream", "--ckpt", str(gesture_ckpt), "--audio", "-", "--seed", "4", *few]
+    made, last = live_runs(monkeypatch, capsys, tmp_path, "gesture", argv, pcm, "stdin.bvh")
+    assert last["onnx"]["runtime"] == "onnx"
+    assert_same_frames(made, "gesture --stream")
+
+    graph = tmp_path / "graph"
+    assert main(["export", "--format", "onnx", "--ckpt", str(gesture_ckpt), "--out", str(graph), *few]) == 0
+    import io
+
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(pcm)))
+    out = tmp_path / "gesture_exported"
+    assert main([*argv, "--out", str(out), "--runtime", "onnx", "--onnx", str(graph)]) == 0
+    np.testing.assert_array_equal(world_positions(out / "stdin.bvh"), made["onnx"])
+
+
+def test_the_live_commands_refuse_what_onnx_runtime_cannot_do(
+    walker_ckpt, gesture_ckpt, xia_dir, tmp_path, monkeypatch, capsys
+):
+    import io
+
+    graph = tmp_path / "graph"
+    assert (
+        main(["export", "--format", "onnx", "--ckpt", str(walker_ckpt), "--out", str(graph), "--steps", "4"])
+        == 0
+    )
+    capsys.readouterr()
+    control = ["control", "--ckpt", str(walker_ckpt), "--style", "old", "--steps", "4"]
+    clip = str(xia_dir / "old_01_000.bvh")
+
+    def refused(argv: list[str], expected: str) -> None:
+        monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(b'{"frames": 2}\n')))
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expected in err[0], err
+
+    mismatch = "walker.onnx was exported for the sampler ddim-4-eta1, this run asks for ddim-2-eta1"
+    refused([*control, "--runtime", "onnx", "--onnx", str(graph), "--steps", "2"], mismatch)
+    refused([*control, "--onnx", str(graph)], "add --runtime onnx")
+    refused([*control, "--runtime", "onnx", "--onnx", str(tmp_path)], "no walker.onnx here")
+    refused([*control, "--runtime", "onnx", "--style-clip", clip], "example clips (--style-clip")
+    refused(["play", "--ckpt", str(walker_ckpt), "--runtime", "onnx", "--style-clip", clip, "--script",
+             str(tmp_path / "s.jsonl"), "--out", str(tmp_path / "p"), "--steps", "4"],
+            "need --runtime torch")  # fmt: skip
+    refused(["walk", "--stream", "--ckpt", str(walker_ckpt), "--style", "old", "--path", "-", "--out",
+             str(tmp_path / "w"), "--runtime", "onnx", "--style-clip", clip],
+            "need --runtime torch")  # fmt: skip
+    refused(["walk", "--ckpt", str(walker_ckpt), "--style", "old", "--path", "p.json", "--out",
+             str(tmp_path / "w"), "--runtime", "onnx"], "--runtime needs --stream")  # fmt: skip
+    refused(["gesture", "--stream", "--ckpt", str(gesture_ckpt), "--audio", "-", "--out", str(tmp_path / "g"),
+             "--runtime", "onnx", "--onnx", str(graph)], "no gesture.onnx here")  # fmt: skip
+    terms = json.loads((graph / "walker.json").read_text())
+    terms["normalizers"]["pose"]["mean"][0] += 1.0  # the graph of another model
+    (graph / "walker.json").write_text(json.dumps(terms))
+    refused(
+        [*control, "--runtime", "onnx", "--onnx", str(graph), "--steps", "4"], "exported from another model"
+    )
+    assert not (tmp_path / "w").exists() and not (tmp_path / "g").exists()
+
+
+def test_play_static_writes_the_page_folder(walker_ckpt, tmp_path, monkeypatch, capsys):
+    """`play --static OUT`: the page, its graph and contract, and onnxruntime-web's files (here a stand-in
+    folder: the page itself runs in the browser test above); an existing page refused unless
+    --overwrite, the served walker's options refused."""
+    from walkdiff.export.static_page import ORT_WEB_FILES
+
+    ort = tmp_path / "ort-web"
+    ort.mkdir()
+    for name in ORT_WEB_FILES:
+        (ort / name).write_bytes(name.encode())
+    monkeypatch.setenv("WALKDIFF_ORT_WEB", str(ort))
+    out = tmp_path / "page"
+    argv = ["play", "--static", str(out), "--ckpt", str(walker_ckpt), "--steps", "4"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["sampler"] == "ddim-4-eta1" and summary["static"] == str(out)
+    assert "<script" in (out / "index.html").read_text()
+    assert [(out / "ort" / n).read_bytes() for n in ORT_WEB_FILES] == [n.encode() for n in ORT_WEB_FILES]
+    terms = json.loads((out / "walker.json").read_text())
+    assert terms["kind"] == "walker" and terms["sampler"]["label"] == "ddim-4-eta1"
+    session_inputs = {i.name for i in __import__("onnxruntime").InferenceSession(
+        str(out / "walker.onnx"), providers=["CPUExecutionProvider"]).get_inputs()}  # fmt: skip
+    assert session_inputs == {i["name"] for i in terms["inputs"]}
+    before = (out / "walker.onnx").stat().st_mtime_ns
+    assert main(argv) == 1
+    assert "would overwrite" in capsys.readouterr().err
+    assert (out / "walker.onnx").stat().st_mtime_ns == before
+    assert main([*argv, "--overwrite"]) == 0
+    capsys.readouterr()
+    refusals = [(["--style", "old"], "--style"), (["--script", "s.jsonl"], "--script"),
+                (["--no-foot-lock"], "--no-foot-lock"), (["--runtime", "onnx"], "--runtime")]  # fmt: skip
+    for extra, flag in refusals:
+        assert main([*argv, "--overwrite", *extra]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{flag} is not for play --static" in err[0], err
+
+
+def test_the_parser_names_the_runtimes_the_runtime_knows():
+    from walkdiff.cli import options
+    from walkdiff.export import runtime
+
+    assert options.RUNTIMES == runtime.RUNTIMES

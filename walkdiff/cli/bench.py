@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, frame_sampler_options, steering_options
+from walkdiff.cli.options import SAMPLERS, frame_sampler_options, runtime_options, steering_options
 from walkdiff.common.arguments import count, number
 from walkdiff.common.errors import WalkdiffError
 
@@ -168,16 +168,8 @@ def add_gesture(bench) -> None:
     b.add_argument("--steps", type=count(1), default=10, help="its steps (default 10)")
     b.add_argument("--eta", type=number(0, 1), default=1.0, help="DDIM noise (default 1: as DDPM's steps)")
     b.add_argument("--streams", default="16,64,128", help="batched streams timed (default 16,64,128)")
-    runtime_option(b)
+    runtime_options(b, graph=False)
     b.set_defaults(run=run_gesture)
-
-
-def runtime_option(b) -> None:
-    b.add_argument(
-        "--runtime", choices=("torch", "onnx"), default="torch",
-        help="what makes each frame: torch (default) or the frame exported to ONNX and run by ONNX Runtime "
-        "on --threads threads (docs/game-engines.md)",
-    )  # fmt: skip
 
 
 def run_gesture(args: argparse.Namespace) -> None:
@@ -218,7 +210,7 @@ def add_stream(bench) -> None:
         help="torch thread counts the streams are timed at (default 1,2; latency: 1)",
     )
     frame_sampler_options(b)
-    runtime_option(b)
+    runtime_options(b, graph=False)
     b.set_defaults(run=run_stream)
 
 
@@ -458,7 +450,7 @@ def add_play(bench) -> None:
     b.add_argument(
         "--frames", type=count(1), default=30, help="frames timed per character count (default 30)"
     )
-    runtime_option(b)
+    runtime_options(b, graph=False)
     b.set_defaults(run=run_play)
 
 

@@ -11,6 +11,7 @@ from walkdiff.cli.options import (
     frame_sampler_options,
     keyword_options,
     rig_options,
+    runtime_options,
     whole_or_stream,
 )
 from walkdiff.common.arguments import count, number
@@ -60,6 +61,7 @@ def add_gesture(sub) -> None:
         default=None,
         help="with --stream: stop after this much audio",
     )
+    runtime_options(p)
     rig_options(p)
     p.set_defaults(run=run_gesture)
 

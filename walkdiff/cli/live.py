@@ -10,6 +10,7 @@ import json
 from walkdiff.cli.options import (
     keyword_options,
     rig_options,
+    runtime_options,
     sampler_options,
     steering_options,
     walker_clip_options,
@@ -38,6 +39,7 @@ def walker_options(p: argparse.ArgumentParser) -> None:
     real_time = "per-frame sampler (default ddim, 10 steps, eta 1: real time with DDPM's quality)"
     sampler_options(p, "ddim", real_time, eta=None)
     steering_options(p)
+    runtime_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 
@@ -82,8 +84,43 @@ def add_play(sub) -> None:
         "--fps", type=number(0, above=True), default=None,
         help="frame rate of the written take (default the model's; it generates at its own)",
     )  # fmt: skip
+    p.add_argument(
+        "--static", default=None, metavar="OUT",
+        help="write a page that needs no server into the folder OUT instead (index.html, walker.onnx, "
+        "walker.json, onnxruntime-web): the walker runs in the browser itself; any static file server hosts "
+        "it (docs/game-engines.md)",
+    )  # fmt: skip
     rig_options(p)
     p.set_defaults(run=run_play)
+    PLAY_DEFAULTS.update({a.dest: (a.option_strings[0], a.default) for a in p._actions if a.dest != "help"})
+
+
+# `play`'s options (dest: flag and default): with --static, one given otherwise is refused.
+PLAY_DEFAULTS: dict = {}
+STATIC_TAKES = ("ckpt", "static", "sampler", "steps", "eta", "overwrite")
+
+
+def static_page(options: dict) -> dict:
+    """`play --static OUT`: the page that needs no server written into OUT (`write_static_page`), refusing
+    the options it cannot take (those of the walker Python serves or replays) and files already in OUT
+    unless --overwrite."""
+    from walkdiff.export.static_page import write_static_page
+
+    given = [k for k, v in options.items() if k not in STATIC_TAKES and v != PLAY_DEFAULTS[k][1]]
+    if given:
+        flag = PLAY_DEFAULTS[given[0]][0]
+        raise WalkdiffError(
+            f"{flag} is not for play --static: the page runs the walker in the browser on its own (its keys "
+            "steer it, ?seed=N picks its noise); drop it"
+        )
+    out = options["static"]
+    terms = write_static_page(
+        options["ckpt"], out, options["sampler"], options["steps"], options["eta"], options["overwrite"]
+    )
+    return {
+        "static": out, "sampler": terms["sampler"]["label"], "files": ["index.html", "walker.onnx",
+        "walker.json", "ort/"], "serve": f"python -m http.server --directory {out} 8000",
+    }  # fmt: skip
 
 
 def run_control(args: argparse.Namespace) -> None:
@@ -96,7 +133,9 @@ def run_play(args: argparse.Namespace) -> None:
     from walkdiff.common.files import strict_json
 
     options = keyword_options(args)
-    if options["script"] is None:
+    if options["static"] is not None:
+        summary = static_page(options)
+    elif options["script"] is None:
         from walkdiff.live.page import serve_page
 
         if options.pop("to") is not None or options.pop("to_map") is not None:
@@ -104,11 +143,11 @@ def run_play(args: argparse.Namespace) -> None:
                 "--to is for play --script (the page records on the model's skeleton); retarget its takes "
                 "with `walkdiff retarget BVH --to RIG --out OUT`"
             )
-        del options["script"]
+        del options["script"], options["static"]
         summary = serve_page(**options)
     else:
         from walkdiff.live.play import play
 
-        del options["host"], options["port"]
+        del options["host"], options["port"], options["static"]
         summary = play(**options)
     print(json.dumps(strict_json(summary), indent=2))

@@ -120,7 +120,7 @@ def command_output(args: argparse.Namespace) -> tuple[Path, tuple[str, ...]] | N
     if args.command == "bench":
         folder = args.what in BENCH_FOLDERS
         return Path(args.out), BENCH_REPORTS[args.what] if folder else ("",)
-    out = getattr(args, "out", None)
+    out = getattr(args, "out", None) or getattr(args, "static", None)  # play --static OUT writes OUT
     if out is None:  # inspect; data scan without --out
         return None
     return Path(out), REPORTS.get(args.command, ())

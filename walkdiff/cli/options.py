@@ -15,6 +15,8 @@ SAMPLERS = ("ddpm", "ddim", "dpmpp")
 MAX_GUIDANCE = 100.0
 # retarget.rigs.RIGS, repeated for the same reason (a test keeps them equal).
 RIG_NAMES = ("mixamo", "unreal", "smpl")
+# export.runtime.RUNTIMES, repeated for the same reason (a test keeps them equal).
+RUNTIMES = ("torch", "onnx")
 GUIDANCE_HELP = f"classifier-free guidance weight in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful)"
 SAMPLER_HELP = (
     "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "
@@ -100,6 +102,22 @@ def steering_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def runtime_options(p: argparse.ArgumentParser, graph: bool = True) -> None:
+    """--runtime (and, with `graph`, --onnx DIR): what makes each frame of a walker or gesture model, the
+    same on the live commands (`play`, `control`, `walk --stream`, `gesture --stream`) and the benches."""
+    p.add_argument(
+        "--runtime", choices=RUNTIMES, default="torch",
+        help="what makes each frame: torch (default) or ONNX Runtime running the frame exported as an ONNX "
+        "graph, the same frames for the same seed (no example clips; docs/game-engines.md)",
+    )  # fmt: skip
+    if graph:
+        p.add_argument(
+            "--onnx", default=None, metavar="DIR",
+            help="with --runtime onnx: the folder `walkdiff export --format onnx` wrote for this checkpoint "
+            "and the sampler asked for (default: the frame is exported at the start, in memory)",
+        )  # fmt: skip
+
+
 def walker_clip_options(p: argparse.ArgumentParser) -> None:
     """--style-clip and --match-clips of a path walker (`walk`, `play`, `control`): example clips whose pose
     statistics the walker takes on; its style is still the --style label's."""
@@ -144,7 +162,7 @@ class Renamed(argparse.Action):
 
 
 # The options of a command with --stream that only the stream takes, and their defaults.
-STREAM_ONLY = {"rate": None, "seconds": None, "idle": 2.0}
+STREAM_ONLY = {"rate": None, "seconds": None, "idle": 2.0, "runtime": "torch", "onnx": None}
 
 
 def whole_or_stream(args: argparse.Namespace, whole, stream, whole_only: tuple[str, ...]) -> None:

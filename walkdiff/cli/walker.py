@@ -8,6 +8,7 @@ from walkdiff.cli.options import (
     PREVIEW_HELP,
     frame_sampler_options,
     rig_options,
+    runtime_options,
     walker_clip_options,
     whole_or_stream,
 )
@@ -52,6 +53,7 @@ def add_walk(sub) -> None:
         "--idle", type=number(0, above=True), default=2.0,
         help="with --stream and a file: the path has ended once the file has not grown for this many seconds",
     )  # fmt: skip
+    runtime_options(p)
     rig_options(p)
     p.set_defaults(run=run_walk)
 

@@ -11,11 +11,15 @@ of the sampler, then after each step with noise), so the same seed gives the tor
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.diffusion import SamplerChoice, randn_like
+from walkdiff.export.contract import FORMAT
 from walkdiff.export.graphs import OUTPUTS, frame_kind
 from walkdiff.export.onnx_files import DEFAULT_SAMPLER, graph_bytes
 
@@ -80,6 +84,8 @@ class _AudioPassThrough:
 class OnnxFrames:
     """A PathWalker or DiffMotion whose frames ONNX Runtime makes (see the module docstring)."""
 
+    runtime = "onnx"  # what manifests record (a torch model has no such attribute: "torch")
+
     def __init__(
         self,
         model,
@@ -141,7 +147,10 @@ class OnnxFrames:
         return torch.cat([control, weights], dim=-1)
 
     def match_streams(self, *args, **kwargs):
-        raise WalkdiffError("--runtime onnx: example clips (style_clips) need the torch runtime")
+        raise WalkdiffError(
+            "--runtime onnx runs the plain frame: example clips (--style-clip, style_clips) need "
+            "--runtime torch"
+        )
 
     def noise(self, rows: int, generator: torch.Generator | None) -> np.ndarray:
         """(slots, rows, D) noise drawn as `advance` of the torch model draws it; unused slots 0."""
@@ -189,10 +198,64 @@ class OnnxFrames:
 
 
 def frame_runtime(
-    model, runtime: str = "torch", sampler: SamplerChoice | None = None, threads: int | None = None
+    model,
+    runtime: str = "torch",
+    sampler: SamplerChoice | None = None,
+    threads: int | None = None,
+    onnx: str | Path | None = None,
 ):
     """The model itself (torch), or `OnnxFrames` of it under `sampler` (default: ddim 10 steps, eta 1) on
-    `threads` threads (None: torch's count at each frame)."""
+    `threads` threads (None: torch's count at each frame): the frame exported now, in memory, or the graph
+    `walkdiff export --format onnx` wrote into the folder `onnx` (checked to be this model's, for this
+    sampler)."""
     if runtime not in RUNTIMES:
         raise WalkdiffError(f"--runtime: expected one of {', '.join(RUNTIMES)}, got {runtime!r}")
-    return model if runtime == "torch" else OnnxFrames(model, sampler or DEFAULT_SAMPLER, threads)
+    if runtime == "torch":
+        if onnx is not None:
+            raise WalkdiffError("--onnx DIR is the graph --runtime onnx runs: add --runtime onnx")
+        return model
+    sampler = sampler or DEFAULT_SAMPLER
+    data = None if onnx is None else exported_graph(model, sampler, onnx)
+    return OnnxFrames(model, sampler, threads, data)
+
+
+def exported_graph(model, sampler: SamplerChoice, folder: str | Path) -> bytes:
+    """The graph `walkdiff export --format onnx` wrote into `folder` for `model` (KIND.onnx beside its
+    contract KIND.json), refused with one line where it is another kind of model's, another model's
+    (its pose normaliser differs) or another sampler's."""
+    kind, folder = frame_kind(model), Path(folder)
+    graph, terms_path = folder / f"{kind}.onnx", folder / f"{kind}.json"
+    for path in (graph, terms_path):
+        if not path.is_file():
+            raise WalkdiffError(
+                f"--onnx: no {path.name} here; write one with `walkdiff export --format onnx --ckpt CKPT "
+                f"--out {folder}`",
+                path=path,
+            )
+    try:
+        terms = json.loads(terms_path.read_text())
+        made_for, steps = terms["sampler"]["label"], terms["sampler"]["timesteps"]
+        pose = terms["normalizers"]["pose"]
+    except (ValueError, KeyError, TypeError) as error:
+        raise WalkdiffError(
+            f"not a contract of `walkdiff export --format onnx` ({error})", path=terms_path
+        ) from None
+    if terms.get("format") != FORMAT or terms.get("kind") != kind:
+        raise WalkdiffError(f"expected a {FORMAT} contract of a {kind}", path=terms_path)
+    asked = sampler.unguided().label(model.diffusion)
+    if made_for != asked or steps != list(sampler.table(model.diffusion).timesteps):
+        raise WalkdiffError(
+            f"--onnx: {graph.name} was exported for the sampler {made_for}, this run asks for {asked}: give "
+            f"its --sampler, --steps and --eta, or export the checkpoint again with yours",
+            path=folder,
+        )
+    normalizer = model.normalizer
+    ours = np.concatenate([normalizer.mean.detach().cpu().numpy(), normalizer.std.detach().cpu().numpy()])
+    theirs = np.asarray(pose["mean"] + pose["std"], dtype=np.float64)
+    if ours.shape != theirs.shape or not np.allclose(ours, theirs, rtol=1e-6, atol=1e-9):
+        raise WalkdiffError(
+            f"--onnx: {graph.name} was exported from another model (its pose normaliser is not this "
+            "checkpoint's); export this checkpoint",
+            path=folder,
+        )
+    return graph.read_bytes()

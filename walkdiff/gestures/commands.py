@@ -106,18 +106,21 @@ def gesture_stream(
     idle: float = 2.0,
     seconds: float | None = None,
     overwrite: bool = False,
+    runtime: str = "torch",
+    onnx: str | None = None,
     **options,
 ) -> dict:
     """`walkdiff gesture --stream`: `GestureGenerator.stream`'s poses as the audio arrives (raw s16le PCM
     on stdin, or a WAV that is still being written), one JSON line per frame on stdout, the BVH(s)
-    written at the end. `options`: what `GestureGenerator.request` takes."""
+    written at the end, made by `runtime` (torch, or onnx: ONNX Runtime, from the graph in the folder
+    `onnx` if given). `options`: what `GestureGenerator.request` takes."""
     generator = GestureGenerator.load(ckpt)
     request = generator.request(**specs_first(options))
     decoder = speech_input(audio, rate, generator.model.spec.get("sample_rate"))
     stem, out = ("stdin" if audio == "-" else Path(audio).stem), output_folder(out)
     _, targets = request.names(out, stem)
     check_free(targets, overwrite)
-    live, started = SpeechStreams(generator, request), time.perf_counter()
+    live, started = SpeechStreams(generator, request, None, runtime, onnx), time.perf_counter()
     arrivals = speech_arrivals(decoder, decoder.chunks(idle), live, seconds)  # opened once outputs are free
     end = StreamEnd()  # bad input midway or Ctrl-C: the frames made so far are written, then it stops
     pump(end, arrivals, live.feed, live.run, sender(live), live.close)
@@ -128,7 +131,8 @@ def gesture_stream(
                 write_bvh(path, take.motion)
     return finished(
         end, takes[0].num_frames if takes else 0, targets, seconds=live.received / (live.rate or 1),
-        streams=request.num, wall_s=round(time.perf_counter() - started, 3), files=[str(t) for t in targets],
+        streams=request.num, runtime=runtime, wall_s=round(time.perf_counter() - started, 3),
+        files=[str(t) for t in targets],
     )  # fmt: skip
 
 

@@ -148,15 +148,23 @@ class GestureGenerator(Pipeline):
         return Generated(takes, settings, timing, seed=request.seed, rig=request.rig, extra=extra)
 
     @python_api
-    def stream(self, rate: int | None = None, **options) -> SpeechStreams:
+    def stream(
+        self,
+        rate: int | None = None,
+        runtime: str = "torch",
+        onnx: str | os.PathLike | None = None,
+        **options,
+    ) -> SpeechStreams:
         """Gestures as the speech arrives (`SpeechStreams`: feed it mono samples at `rate` Hz, default
         the model's training audio's): `options` as `request`'s, no rig (the live poses are on the
-        model's skeleton)."""
+        model's skeleton). `runtime` 'onnx': the frames made by ONNX Runtime, the same for the same seed
+        (the frame exported for the request's sampler, or the graph `walkdiff export --format onnx`
+        wrote into the folder `onnx`)."""
         request = self.request(**options)
         rate = rate or self.model.spec.get("sample_rate")
         if rate is None:
             raise WalkdiffError("the checkpoint does not record its audio's sample rate: give the rate")
-        return SpeechStreams(self, request, rate)
+        return SpeechStreams(self, request, rate, runtime, onnx)
 
     def listen(
         self, audio: str | os.PathLike | np.ndarray, rate: int | None = None, streams: int = 1
@@ -191,9 +199,18 @@ class SpeechStreams:
     over time at `rate` Hz (None: not known yet, `start` once it is). `feed` samples, `run` the frames
     they allow, `frames` hands those over (the poses as rotations on the file's skeleton), `close` at the
     end of the speech; `takes` are the clips made, smoothed as asked (the live frames never are: they
-    could not wait for the filter's frames ahead)."""
+    could not wait for the filter's frames ahead). `runtime` 'onnx' (+ `onnx`, a folder of an exported
+    graph): the frames made by ONNX Runtime, as `GestureGenerator.stream` says."""
 
-    def __init__(self, generator: GestureGenerator, request: GestureRequest, rate: int | None = None):
+    def __init__(
+        self,
+        generator: GestureGenerator,
+        request: GestureRequest,
+        rate: int | None = None,
+        runtime: str = "torch",
+        onnx: str | os.PathLike | None = None,
+    ):
+        from walkdiff.export.runtime import frame_runtime
         from walkdiff.gestures.stream import GestureBatch
 
         if request.rig is not None:
@@ -204,7 +221,9 @@ class SpeechStreams:
         model, spec = generator.model, generator.model.spec
         self.generator, self.model, self.request = generator, model, request
         self.joints = list(spec["joints"])
-        self.batch = GestureBatch(model, request.seed, request.sampler)
+        self.runtime = runtime
+        self.runner = frame_runtime(model, runtime, request.sampler, onnx=onnx)  # the model, or ONNX Runtime
+        self.batch = GestureBatch(self.runner, request.seed, request.sampler)
         self.streams: list = []
         self.poses: list[list[np.ndarray]] = [[] for _ in range(request.num)]
         self.rate, self.received = None, 0  # samples fed
@@ -215,7 +234,7 @@ class SpeechStreams:
         """The streams, once the speech's sample rate is known."""
         from walkdiff.gestures.stream import GestureStream
 
-        self.streams = [GestureStream(self.model, rate, batch=self.batch) for _ in range(self.request.num)]
+        self.streams = [GestureStream(self.runner, rate, batch=self.batch) for _ in range(self.request.num)]
         self.rate = self.streams[0].rate
 
     def header(self) -> dict:

@@ -140,7 +140,8 @@ def write_takes(
 def settings(ckpt, walker: WalkController, fps=None) -> dict:
     return {
         "checkpoint": str(ckpt), "style": walker.start_style, "speed_m_s": walker.start_speed,
-        "seed": walker.seed, "sampler": walker.sampler.label(walker.model.diffusion), "model_fps": walker.fps,
+        "seed": walker.seed, "sampler": walker.sampler.label(walker.model.diffusion),
+        "runtime": getattr(walker.model, "runtime", "torch"), "model_fps": walker.fps,
         "written_fps": fps or walker.fps, "characters": walker.characters,
         "transition_s": walker.transition, "turn_rate_deg_s": math.degrees(walker.turn_rate),
         "heading_assist_deg_s": math.degrees(walker.heading_assist), "foot_lock": walker.lock is not None,

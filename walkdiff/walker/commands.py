@@ -162,6 +162,6 @@ def walk_stream(
         write_bvh(bvh, take.motion)
     return finished(
         end, 0 if take is None else take.num_frames, [bvh], path_length_m=live.path_length_m,
-        speed_m_s=live.speed_m_s, wall_s=round(time.perf_counter() - started, 3),
+        speed_m_s=live.speed_m_s, runtime=live.runtime, wall_s=round(time.perf_counter() - started, 3),
         style_clips=clips_record(live.request.spec.clips) or None, files=[str(bvh)],
     )  # fmt: skip

@@ -493,14 +493,28 @@ def first_style(model) -> str:
 
 
 def controller(
-    model, style=None, speed=None, seed=0, sampler="ddim", steps=None, eta=None, characters=1, **options
+    model,
+    style=None,
+    speed=None,
+    seed=0,
+    sampler="ddim",
+    steps=None,
+    eta=None,
+    characters=1,
+    runtime="torch",
+    onnx=None,
+    **options,
 ) -> WalkController:
     """A `WalkController` of a PathWalker, set up as every live front end sets it up (`PathFollower.
     controller`, `walkdiff play`, `control`, the page): `style` None is the model's first style with a
     known walking speed; the sampler named as on the command line (ddim: 10 steps and eta 1 unless
-    given)."""
+    given); `runtime` 'onnx': its frames made by ONNX Runtime (`export/runtime.py`), from the frame
+    exported now or the graph exported into the folder `onnx`."""
+    from walkdiff.export.runtime import frame_runtime
+
     if sampler == "ddim":
         steps, eta = steps or 10, 1.0 if eta is None else eta
     choice = SamplerChoice(sampler, steps, eta or 0.0)
     style = first_style(model) if style is None else style
-    return WalkController(model, style, speed, seed, choice, characters, **options)
+    frames = frame_runtime(model, runtime, choice, onnx=onnx)
+    return WalkController(frames, style, speed, seed, choice, characters, **options)

@@ -135,11 +135,21 @@ class PathFollower(Pipeline):
         return self.walk(self.request(style, speed, **options), path, seed)
 
     @python_api
-    def stream(self, style, speed: float | None = None, seed: int = 0, **options) -> PathStream:
+    def stream(
+        self,
+        style,
+        speed: float | None = None,
+        seed: int = 0,
+        runtime: str = "torch",
+        onnx: str | os.PathLike | None = None,
+        **options,
+    ) -> PathStream:
         """A walk along a path whose points arrive over time (`PathStream`: feed it (x, z) points in
         metres): one style (no timeline), at `speed` m/s (None: the style's own); `options` as
-        `request`'s, no rig (the live poses are on the model's skeleton)."""
-        return PathStream(self, self.request(style, speed, **options), seed)
+        `request`'s, no rig (the live poses are on the model's skeleton). `runtime` 'onnx': the frames
+        made by ONNX Runtime, the same for the same seed (the frame exported for the request's sampler,
+        or the graph `walkdiff export --format onnx` wrote into the folder `onnx`); no example clips."""
+        return PathStream(self, self.request(style, speed, **options), seed, runtime, onnx)
 
     @python_api
     def request(
@@ -255,7 +265,15 @@ class PathStream:
     metres, `run` the frames the path so far allows, `frames` hands those over (on the training files'
     skeleton), `close` at the path's end; `take` is the whole walk made."""
 
-    def __init__(self, follower: PathFollower, request: WalkRequest, seed: int = 0):
+    def __init__(
+        self,
+        follower: PathFollower,
+        request: WalkRequest,
+        seed: int = 0,
+        runtime: str = "torch",
+        onnx: str | os.PathLike | None = None,
+    ):
+        from walkdiff.export.runtime import frame_runtime
         from walkdiff.walker.stream import WalkStream
 
         if request.timeline is not None:
@@ -274,7 +292,9 @@ class PathStream:
             raise WalkdiffError("the checkpoint has no walking speed for this style; give --speed")
         self.speed_m_s = units_per_s * unit
         sampler, match = request.sampler, request.match
-        self.walker = WalkStream(model, index, units_per_s, seed, sampler=sampler, match=match)
+        frames = frame_runtime(model, runtime, sampler, onnx=onnx)  # the model itself, or ONNX Runtime
+        self.runtime = runtime
+        self.walker = WalkStream(frames, index, units_per_s, seed, sampler=sampler, match=match)
         self.raws: list[np.ndarray] = []
 
     @property
