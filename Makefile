@@ -11,10 +11,13 @@ EVALUATOR := checkpoints/evaluator_xia/last.ckpt
 
 .PHONY: install test docs-check train evaluator ui lint clean web
 
-# onnxruntime-web for the page that needs no server (`walkdiff export --format web`), pinned, from npm.
+# onnxruntime-web for the page that needs no server (`walkdiff play --static`, `walkdiff export --format
+# web`): the npm package at a pinned version, checked against its registry integrity (sha512).
 ORT_WEB := .cache/onnxruntime-web-1.30.0
+ORT_WEB_URL := https://registry.npmjs.org/onnxruntime-web/-/onnxruntime-web-1.30.0.tgz
+ORT_WEB_SHA512 := q0y+JrrtukXSzsBWEMccVfqX25LRmosXHF+CaRJmg8pZClzcV7svNc4rKY3jL02Vb7QmRMDs1SigqR4CXAfKYQ==
 
-install: $(STAMP)
+install: $(STAMP) web
 
 # Exact pins in $(LOCK); torch is the CPU build pinned in DESIGN.md. Re-runs only when they change.
 $(STAMP): pyproject.toml $(LOCK)
@@ -53,10 +56,11 @@ ui: install
 	  --host 127.0.0.1 --port $(UI_PORT) --workers 1
 
 web: $(ORT_WEB)/ort.wasm.min.js
-$(ORT_WEB)/ort.wasm.min.js:
+$(ORT_WEB)/ort.wasm.min.js: | $(STAMP)
 	@mkdir -p $(ORT_WEB)/npm
-	cd $(ORT_WEB)/npm && npm pack --silent onnxruntime-web@1.30.0
-	tar -xzf $(ORT_WEB)/npm/onnxruntime-web-1.30.0.tgz -C $(ORT_WEB) --strip-components=2 \
+	$(PY) -c "import urllib.request as u, sys; u.urlretrieve(sys.argv[1], sys.argv[2])" $(ORT_WEB_URL) $(ORT_WEB)/npm/ort-web.tgz
+	@$(PY) -c "import base64, hashlib, sys; d = base64.b64encode(hashlib.sha512(open(sys.argv[1], 'rb').read()).digest()).decode(); sys.exit(0 if d == sys.argv[2] else 'onnxruntime-web: the download does not match its pinned sha512 (' + d + ')')" $(ORT_WEB)/npm/ort-web.tgz $(ORT_WEB_SHA512)
+	tar -xzf $(ORT_WEB)/npm/ort-web.tgz -C $(ORT_WEB) --strip-components=2 \
 	  package/dist/ort.wasm.min.js package/dist/ort-wasm-simd-threaded.wasm package/dist/ort-wasm-simd-threaded.mjs
 	@rm -rf $(ORT_WEB)/npm
 
