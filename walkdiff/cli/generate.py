@@ -18,7 +18,7 @@ from walkdiff.common.arguments import count, number
 def add_parsers(sub) -> None:
     p = sub.add_parser("sample", help="generate styled motion of any length: BVH + GIF + manifest.json")
     sampling_options(p)
-    p.add_argument("--num", type=count(1), default=8, help="clips (default 8)")
+    p.add_argument("--num", type=count(1), default=1, help="clips (default 1, as `model.sample`)")
     p.add_argument(
         "--frames", type=count(1), default=300, help="frames per clip at the model's fps (default 300)"
     )
