@@ -49,23 +49,32 @@ class StreamBatch:
         self.streams.append(stream)
         return len(self.streams) - 1
 
-    def encode(self, ready: list) -> torch.Tensor:
-        """The encoded controls (R, control_hidden) of the streams `ready` for their next frame."""
+    def encode(self, rows: np.ndarray) -> torch.Tensor:
+        """The encoded controls (R, control_hidden) of the streams at `rows` for their next frame."""
         raise NotImplementedError
+
+    def ready(self) -> np.ndarray:
+        """The rows of the streams with a frame ready, in order."""
+        return np.flatnonzero([s.ready() for s in self.streams])
 
     def step(self) -> int:
         """One frame for every stream with one ready, in one forward; how many streams advanced."""
-        ready = [s for s in self.streams if s.ready()]
-        if not ready:
+        ready = self.ready()
+        if not len(ready):
             return 0
         every = len(ready) == len(self.streams)
-        rows = None if every else torch.tensor([s.row for s in ready], device=self.model.device)
+        rows = None if every else torch.from_numpy(ready).to(self.model.device)
         with torch.inference_mode():
             x = self.model.advance(self.frames, self.encode(ready), self.generator, rows)
             poses = self.model.normalizer.denormalize(x).cpu().numpy()
-        for stream, pose in zip(ready, poses):
-            stream.receive(pose)
+        self.advanced(ready, poses)
         return len(ready)
+
+    def advanced(self, ready: np.ndarray, poses: np.ndarray) -> None:
+        """The streams at rows `ready` made their frames `poses` (R, D)."""
+        streams = self.streams
+        for row, pose in zip(ready.tolist(), poses):
+            streams[row].receive(pose)
 
     def run(self) -> int:
         """Every frame that is ready, a frame at a time (streams behind others catch up); frames made."""
