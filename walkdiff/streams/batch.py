@@ -1,9 +1,10 @@
 """Streams of one frame model advanced together: gestures from speech that is still arriving (gestures/
 stream.py), walking along a path that is still being drawn (walker/stream.py).
 
-A stream owns what its control needs (the audio features so far, or the path so far) and says when its
-next frame is ready; a batch of streams of one model carries their LSTM state and previous poses
-(`FrameStreams`) and, per frame, runs one forward for all the streams that have a frame ready:
+A stream takes in what its control needs (audio, or path points) and its batch knows when its next frame
+is ready (a walk stream keeps its path; a gesture batch keeps all its streams' audio features, computed
+together); a batch of streams of one model carries their LSTM state and previous poses (`FrameStreams`)
+and, per frame, runs one forward for all the streams that have a frame ready:
 
     batch = GestureBatch(model, seed=0)
     a, b = GestureStream(model, batch=batch), GestureStream(model, batch=batch)
