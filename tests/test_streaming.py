@@ -16,7 +16,7 @@ from test_speech import RATE, write_take
 from walkdiff.cli.main import main
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
-from walkdiff.data.speech import LogMelStream, SpeechDataModule, log_mel, read_wav
+from walkdiff.data.speech import LOG_FLOOR, LogMelBatch, LogMelStream, SpeechDataModule, log_mel, read_wav
 from walkdiff.gestures.generator import load_model, synthesize
 from walkdiff.gestures.stream import GestureBatch, GestureStream
 from walkdiff.models.diffmotion import DiffMotion
@@ -158,6 +158,64 @@ def test_log_mel_stream_refuses_a_rate_without_whole_samples_per_frame():
         LogMelStream(22050, 20.0)
 
 
+def pushes_one_by_one(samples: np.ndarray, pushes: list[np.ndarray], mel: LogMelBatch) -> np.ndarray:
+    """The frames of `samples` pushed in `pushes`, each push's frames computed on their own (one FFT and
+    one mel product per push, the samples not yet arrived zero) with `mel`'s window and filters: what a
+    lone stream computed before streams were featurised together."""
+    hop, half, done, received, out = mel.hop, mel.n_fft // 2, 0, 0, []
+    for push in [*pushes, None]:
+        received += 0 if push is None else len(push)
+        end = done
+        while (push is None and end < 1 + received // hop) or (
+            push is not None and mel.needed(end) <= received
+        ):
+            end += 1
+        known = np.concatenate(
+            [np.zeros(half, np.float32), samples[:received], np.zeros(2 * half, np.float32)]
+        )
+        if end > done:
+            columns = np.stack([known[k * hop : k * hop + 2 * half] for k in range(done, end)], axis=1)
+            power = np.abs(np.fft.rfft(mel.window[:, None] * columns, axis=0)) ** 2.0
+            out.append(np.log(mel.mel_basis @ power + LOG_FLOOR).T)
+        done = end
+    return np.concatenate(out)
+
+
+def test_streams_featurised_together_get_the_floats_each_gets_alone():
+    """Five streams' audio, pushed in turn in chunks of 1 sample to a second and computed together at
+    random moments (one FFT for all their new frames): each frame is, bit for bit, the one its stream
+    computes alone, so the frames made do not depend on which streams share a batch."""
+    rng = np.random.default_rng(0)
+    mel = LogMelBatch(RATE, 20.0)
+    length = int(1.3 * RATE)
+    takes = [rng.normal(0, 0.1, length) * np.sin(np.arange(length) / (300 + 200 * k)) for k in range(5)]
+    takes = [t.astype(np.float32) for t in takes]
+    rows = [mel.add() for _ in takes]
+    pushes = [random_chunks(t, rng, most) for t, most in zip(takes, [1, 700, 800, 5000, RATE])]
+    turns = [row for row in rows for _ in pushes[row]]
+    rng.shuffle(turns)
+    left = [iter(p) for p in pushes]
+    made: list[dict] = [{} for _ in rows]
+
+    def compute():
+        for row, frame, values in zip(*mel.compute()):
+            assert frame not in made[row]
+            made[row][frame] = values
+
+    for row in turns:
+        mel.push(row, next(left[row]))
+        if rng.random() < 0.2:
+            compute()
+    for row in rows:
+        mel.finish(row)
+    compute()
+    for row, take in zip(rows, takes):
+        together = np.stack([made[row][f] for f in range(len(made[row]))])
+        alone = pushes_one_by_one(take, pushes[row], mel)
+        assert together.shape == alone.shape == (1 + length // 800, 27)
+        assert np.array_equal(together.view(np.uint32), alone.view(np.uint32))
+
+
 # ---------------------------------------------------------------- gesture streams
 
 
@@ -244,6 +302,38 @@ def test_streams_batched_one_forward_per_frame(speech_ckpt, monkeypatch):
     calls.clear()
     batch.run()
     assert calls == [1] * 12 and len(late.take()) == 12 and len(ahead.take()) == len(behind.take()) == 0
+
+
+def test_a_batch_of_streams_at_two_rates_for_longer_than_its_buffers(speech_ckpt):
+    """Streams at 16 and 48 kHz in one batch, fed 20 ms at a time for 15 s (their sample and feature
+    buffers made room for many times over), advance in lockstep and make the poses the offline batch
+    makes of the same audio and seed."""
+    model = load_model(speech_ckpt[0])
+    rng = np.random.default_rng(3)
+    rates, seconds = (RATE, 3 * RATE), 15
+    takes = [
+        (rng.normal(0, 0.1, seconds * r) * np.sin(np.arange(seconds * r) / r * 7)).astype(np.float32)
+        for r in rates
+    ]
+    mels = np.stack([log_mel(t, r, 20.0) for t, r in zip(takes, rates)])
+    offline = model.generate(torch.from_numpy(mels), torch.Generator().manual_seed(2), streams=1).numpy()
+    batch = GestureBatch(model, seed=2)
+    streams = [GestureStream(model, r, batch=batch) for r in rates]
+    widths = []
+    for at in range(0, seconds * 50):
+        for stream, take, r in zip(streams, takes, rates):
+            stream.feed(take[at * r // 50 : (at + 1) * r // 50])
+        batch.run()
+        if at in (50, seconds * 50 - 1):  # after a second, and at the end
+            widths.append([batch.history.shape[1], *(s.features.buffer.shape[1] for s in streams)])
+    for stream in streams:
+        stream.close()
+    batch.run()
+    for k, stream in enumerate(streams):
+        streamed = stream.take()
+        assert streamed.shape == offline[k].shape == (1 + seconds * 20, model.spec["feature_dim"])
+        np.testing.assert_allclose(streamed, offline[k], atol=1e-4, rtol=0)
+    assert widths[0] == widths[1], "the buffers made room by dropping what no window needs, not by growing"
 
 
 # ---------------------------------------------------------------- walking streams

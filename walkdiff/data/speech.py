@@ -121,13 +121,19 @@ def samples_per_frame(rate: int, fps: float, where: str) -> int:
     return int(rate / fps)
 
 
-class LogMelStream:
-    """`log_mel` of audio that arrives in pieces: the same frames, each out as soon as its window is in.
+class LogMelBatch:
+    """`log_mel` of many streams' audio arriving in pieces: the same frames, each computable as soon as
+    its window is in. A row's samples are appended to its buffer as they come (`push`: a copy, nothing
+    computed); `compute` then makes every frame completed since, of all rows, in one go: one gather of
+    the windows, one FFT, one log.
 
     Mel frame k is centred on sample k * hop with a 2-hop window, so it needs the samples before
-    (k + 1) * hop; `finish` adds the frames whose windows run past the end, zero-padded as `log_mel`
+    (k + 1) * hop; `finish` adds a row's frames whose windows run past its end, zero-padded as `log_mel`
     pads them (librosa's centred STFT). The window and mel filters are librosa's, made once: building
-    the filters is ~30 ms, which librosa's melspectrogram would pay on every call.
+    the filters is ~30 ms, which librosa's melspectrogram would pay on every call. The mel projection
+    is one BLAS product per push, run stacked by the number of frames the push completed: BLAS rounds a
+    product of k columns differently for each k (and for one column, a matrix-vector product), and
+    this keeps each frame the float a stream computing its pushes one by one gets.
     """
 
     def __init__(self, rate: int, fps: float, bands: int = 27, where: str = "audio"):
@@ -137,55 +143,144 @@ class LogMelStream:
         self.hop = samples_per_frame(rate, fps, where)
         self.n_fft = 1 << math.ceil(math.log2(2 * self.hop))
         window = librosa.filters.get_window("hann", 2 * self.hop, fftbins=True)
-        self.window = librosa.util.pad_center(window, size=self.n_fft).astype(np.float32)[:, None]
+        self.window = librosa.util.pad_center(window, size=self.n_fft).astype(np.float32)
         self.mel_basis = librosa.filters.mel(sr=rate, n_fft=self.n_fft, n_mels=bands)
         # Frame k reads samples [k hop - n_fft/2, k hop + n_fft/2); its window is non-zero on the middle
         # 2 hops of that span, so the last sample it needs is k hop - n_fft/2 + `self.reach` - 1.
         self.reach = (self.n_fft - 2 * self.hop) // 2 + 2 * self.hop
-        self.buffer = np.zeros(0, dtype=np.float32)
-        self.offset = -(self.n_fft // 2)  # the sample index of buffer[0]: the first window starts before 0
-        self.received = 0  # samples pushed
-        self.frames = 0  # frames out
-        self.finished = False
+        # Each row's samples from `offset` (the first window starts n_fft/2 before sample 0, on the centred
+        # STFT's zeros), `filled` of them, then zeros: a window reaching past the samples in reads zeros.
+        self.buffer = np.zeros((0, 4 * self.n_fft), np.float32)
+        self.offset: list[int] = []
+        self.filled: list[int] = []
+        self.received: list[int] = []  # samples pushed, per row
+        self.frames: list[int] = []  # frames the samples so far complete (computed or pending), per row
+        self.computed: list[int] = []  # frames computed, per row
+        self.finished: list[bool] = []
+        self.pending: list[tuple[int, int, int]] = []  # (row, first frame, end frame) per push, in order
+
+    @property
+    def rows(self) -> int:
+        return len(self.received)
+
+    def add(self) -> int:
+        """A new row (a stream at its start); its index."""
+        if self.rows == len(self.buffer):  # rows grow by doubling: a batch of n streams copies O(n) rows
+            grown = np.zeros((max(1, 2 * self.rows), self.buffer.shape[1]), np.float32)
+            grown[: self.rows] = self.buffer[: self.rows]
+            self.buffer = grown
+        self.offset.append(-(self.n_fft // 2))
+        self.filled.append(self.n_fft // 2)
+        for state in (self.received, self.frames, self.computed):
+            state.append(0)
+        self.finished.append(False)
+        return self.rows - 1
 
     def needed(self, frame: int) -> int:
         """Samples that must have arrived before `frame` can be computed (before the end is known)."""
         return frame * self.hop - self.n_fft // 2 + self.reach
 
-    def push(self, samples: np.ndarray) -> np.ndarray:
-        """Mono float samples (any number) -> the (n, bands) frames they complete."""
-        if self.finished:
+    def push(self, row: int, samples: np.ndarray) -> int:
+        """Mono float samples (any number) for `row`; the frames they complete (`compute` makes them)."""
+        if self.finished[row]:
             raise WalkdiffError("audio pushed after the end of the stream")
         samples = np.asarray(samples, dtype=np.float32).reshape(-1)
-        if len(self.buffer) == 0 and self.received == 0:
-            self.buffer = np.zeros(-self.offset, dtype=np.float32)  # the centred STFT's zeros before sample 0
-        self.buffer = np.concatenate([self.buffer, samples])
-        self.received += len(samples)
-        end = self.frames
-        while self.needed(end) <= self.received:
-            end += 1
-        return self._frames(end)
+        filled, count = self.filled[row], len(samples)
+        if filled + count + self.n_fft > self.buffer.shape[1]:  # room for it and the windows past it
+            filled = self._room(row, count)
+        self.buffer[row, filled : filled + count] = samples
+        self.filled[row] = filled + count
+        self.received[row] += count
+        # frame k is complete once needed(k) <= received
+        end = (self.received[row] + self.n_fft // 2 - self.reach) // self.hop + 1
+        return self._complete(row, end)
+
+    def finish(self, row: int) -> int:
+        """The end of `row`'s audio: the frames left (`log_mel` has 1 + samples // hop in all)."""
+        self.finished[row] = True
+        return self._complete(row, 1 + self.received[row] // self.hop)
+
+    def compute(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every frame completed since the last call, of all rows: their rows (N,), frame numbers (N,) and
+        log-mel values (N, bands) float32, in the order they were completed."""
+        pending, self.pending = self.pending, []
+        if not pending:
+            empty = np.zeros(0, np.int64)
+            return empty, empty, np.zeros((0, self.bands), np.float32)
+        rows, starts, ends = np.array(pending, dtype=np.int64).T
+        sizes = ends - starts
+        at = np.cumsum(sizes) - sizes  # each push's first position in the output
+        row_of = np.repeat(rows, sizes)
+        frame = np.arange(len(row_of)) - np.repeat(at - starts, sizes)
+        column = frame * self.hop - self.n_fft // 2 - np.asarray(self.offset)[row_of]
+        windows = np.lib.stride_tricks.sliding_window_view(self.buffer, self.n_fft, axis=1)[row_of, column]
+        windows *= self.window
+        power = np.abs(np.fft.rfft(windows, axis=1)) ** 2.0  # (N, n_fft / 2 + 1)
+        mel = np.empty((len(row_of), self.bands), np.float32)
+        counts = np.unique(sizes)
+        for k in counts.tolist():  # the pushes that completed k frames: one stacked product
+            same = at if len(counts) == 1 else at[sizes == k]
+            spots = same[:, None] + np.arange(k)  # (pushes, k) output positions
+            products = np.matmul(self.mel_basis, power[spots].transpose(0, 2, 1))  # (pushes, bands, k)
+            mel[spots] = products.transpose(0, 2, 1)
+        self.computed = list(self.frames)
+        return row_of, frame, np.log(mel + LOG_FLOOR)
+
+    def _complete(self, row: int, end: int) -> int:
+        if end <= self.frames[row]:
+            return 0
+        self.pending.append((row, self.frames[row], end))
+        done, self.frames[row] = end - self.frames[row], end
+        return done
+
+    def _room(self, row: int, count: int) -> int:
+        """Room in `row`'s buffer for `count` more samples and a window's span of zeros after them: the
+        samples before its next window to compute dropped, then the buffer widened if still needed; the
+        row's new fill."""
+        keep = self.computed[row] * self.hop - self.n_fft // 2 - self.offset[row]  # its first sample
+        filled = self.filled[row] - keep
+        self.buffer[row, :filled] = self.buffer[row, keep : self.filled[row]]
+        self.buffer[row, filled : self.filled[row]] = 0.0
+        self.offset[row] += keep
+        self.filled[row] = filled
+        if filled + count + self.n_fft > self.buffer.shape[1]:
+            width = max(2 * self.buffer.shape[1], filled + count + self.n_fft)
+            wider = np.zeros((len(self.buffer), width), np.float32)
+            wider[:, : self.buffer.shape[1]] = self.buffer
+            self.buffer = wider
+        return filled
+
+
+class LogMelStream:
+    """`log_mel` of one stream's audio arriving in pieces (a `LogMelBatch` of one row): each `push`
+    returns the (n, bands) frames it completed, `finish` the frames left at the end."""
+
+    def __init__(self, rate: int, fps: float, bands: int = 27, where: str = "audio"):
+        self.batch = LogMelBatch(rate, fps, bands, where)
+        self.row = self.batch.add()
+        self.hop, self.n_fft = self.batch.hop, self.batch.n_fft
+
+    @property
+    def received(self) -> int:
+        return self.batch.received[self.row]
+
+    @property
+    def frames(self) -> int:
+        """Frames out so far."""
+        return self.batch.frames[self.row]
+
+    def needed(self, frame: int) -> int:
+        return self.batch.needed(frame)
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        """Mono float samples (any number) -> the (n, bands) frames they complete."""
+        self.batch.push(self.row, samples)
+        return self.batch.compute()[2]
 
     def finish(self) -> np.ndarray:
-        """The frames left once the audio has ended: `log_mel` has 1 + samples // hop in all."""
-        self.finished = True
-        return self._frames(1 + self.received // self.hop)
-
-    def _frames(self, end: int) -> np.ndarray:
-        if end <= self.frames:
-            return np.zeros((0, self.bands), dtype=np.float32)
-        first = self.frames * self.hop - self.n_fft // 2 - self.offset  # buffer index of the first window
-        span = (end - 1 - self.frames) * self.hop + self.n_fft
-        segment = self.buffer[first : first + span]
-        # Samples not yet arrived (or past the end) fall where the window is zero, or are the end's padding.
-        segment = np.concatenate([segment, np.zeros(span - len(segment), dtype=np.float32)])
-        columns = np.lib.stride_tricks.sliding_window_view(segment, self.n_fft)[:: self.hop].T
-        power = np.abs(np.fft.rfft(self.window * columns, axis=0)) ** 2.0
-        mel = self.mel_basis @ power
-        self.frames = end
-        keep = self.frames * self.hop - self.n_fft // 2 - self.offset  # the next window's first sample
-        self.buffer, self.offset = self.buffer[keep:], self.offset + keep
-        return np.log(mel + LOG_FLOOR).T.astype(np.float32)
+        """The frames left once the audio has ended."""
+        self.batch.finish(self.row)
+        return self.batch.compute()[2]
 
 
 def onset_times(samples: np.ndarray, rate: int) -> np.ndarray:

@@ -73,12 +73,16 @@ class _AudioPassThrough:
     the normalised flattened window a `GestureStream` hands over is turned back into raw frames."""
 
     def __init__(self, model):
-        self.mean, self.std = model.audio_normalizer.mean, model.audio_normalizer.std
+        normalizer = model.audio_normalizer
+        self.mean, self.std = (v.detach().cpu().numpy() for v in (normalizer.mean, normalizer.std))
         self.shape = (model.window, model.spec["audio_dim"])
 
     def audio(self, windows: torch.Tensor) -> torch.Tensor:
-        raw = windows.unflatten(-1, self.shape) * self.std + self.mean
-        return raw.flatten(-2)
+        # In numpy: torch would run these on its thread pool, whose wake-up on a busy machine took 13 ms
+        # a frame at 256 streams on 2 threads (numpy's float32 multiply and add round as torch's).
+        flat = windows.detach().cpu().numpy()
+        raw = flat.reshape(*flat.shape[:-1], *self.shape) * self.std + self.mean
+        return torch.from_numpy(raw.reshape(flat.shape))
 
 
 class OnnxFrames:
@@ -100,6 +104,9 @@ class OnnxFrames:
         self.data = data if data is not None else graph_bytes(model, sampler)
         self.threads, self.sessions = threads, {}
         self.noise_slots = len(self.table.timesteps) + 1
+        # The noise the frame draws: the start of the sampler, then after each step with noise.
+        self.noisy_slots = [0] + [k + 1 for k, s in enumerate(self.table.sigma) if s > 0]
+        self.drawn = np.zeros((self.noise_slots, 0, model.spec["feature_dim"]), np.float32)  # advance's
         if self.kind == "gesture":
             self.encoder = _AudioPassThrough(model)
 
@@ -152,13 +159,18 @@ class OnnxFrames:
             "--runtime torch"
         )
 
-    def noise(self, rows: int, generator: torch.Generator | None) -> np.ndarray:
-        """(slots, rows, D) noise drawn as `advance` of the torch model draws it; unused slots 0."""
+    def noise(
+        self, rows: int, generator: torch.Generator | None, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(slots, rows, D) noise drawn as `advance` of the torch model draws it; unused slots 0. `out`:
+        an array of that shape to draw into (its unused slots left as they are: zeros)."""
         dim = self.model.spec["feature_dim"]
-        noise = np.zeros((self.noise_slots, rows, dim), np.float32)
-        like = torch.empty(rows, dim)
-        for slot in [0] + [k + 1 for k, s in enumerate(self.table.sigma) if s > 0]:
-            noise[slot] = randn_like(like, generator).numpy()
+        noise = np.zeros((self.noise_slots, rows, dim), np.float32) if out is None else out
+        for slot in self.noisy_slots:
+            if generator is None or generator.device.type == "cpu":  # drawn in place, no copy
+                torch.randn((rows, dim), generator=generator, out=torch.from_numpy(noise[slot]))
+            else:
+                noise[slot] = randn_like(torch.empty(rows, dim), generator).numpy()
         return noise
 
     def run(self, control: np.ndarray, previous, h, c, noise) -> list[np.ndarray]:
@@ -181,7 +193,9 @@ class OnnxFrames:
         """One frame for the streams `rows` (default: all) from their raw controls: their poses (R, D),
         normalised, as `AutoregressiveDiffusion.advance`."""
         control = control.float().cpu().numpy()
-        noise = self.noise(len(control), generator)
+        if self.drawn.shape[1] != len(control):  # one buffer per row count: a run only reads it
+            self.drawn = np.zeros((self.noise_slots, len(control), self.drawn.shape[2]), np.float32)
+        noise = self.noise(len(control), generator, self.drawn)
         if rows is None:
             _, x, streams.h, streams.c = self.run(control, streams.previous, streams.h, streams.c, noise)
             streams.previous = x

@@ -11,24 +11,133 @@ import numpy as np
 import torch
 
 from walkdiff.common.errors import WalkdiffError
-from walkdiff.data.speech import LogMelStream
+from walkdiff.data.speech import LogMelBatch, samples_per_frame
 from walkdiff.diffusion import SamplerChoice
 from walkdiff.streams.batch import Stream, StreamBatch
 from walkdiff.streams.inputs import read_growing, read_pipe
 
 
 class GestureBatch(StreamBatch):
-    def encode(self, ready: list) -> torch.Tensor:
-        windows = torch.from_numpy(np.stack([s.control() for s in ready])).to(self.model.device)
+    """Gesture streams of one model. Their audio features are kept here for all of them: a stream's
+    samples go to its row of a `LogMelBatch` (one per sample rate), and each step first computes the
+    frames all the streams' samples completed, at once, and keeps them normalised in one array
+    (`history`, a row per stream) from which the control windows of the ready streams are gathered."""
+
+    def __init__(self, model, seed: int = 0, sampler: SamplerChoice | None = None):
+        super().__init__(model, seed, sampler)
+        spec = model.spec
+        self.fps, self.bands = spec["fps"], spec["audio_dim"]
+        self.past, self.lookahead, self.window = spec["past"], spec["lookahead"], model.window
+        normalizer = model.audio_normalizer
+        self.mean, self.std = normalizer.mean.cpu().numpy(), normalizer.std.cpu().numpy()
+        self.mels: dict[int, tuple[LogMelBatch, list[int]]] = {}  # rate -> features, each of its rows' row
+        # Per stream row: normalised audio frames from frame `first` - past on (the first frame repeated
+        # `past` times before it, the last `lookahead` times after it once the audio has ended, as
+        # offline), `have` of them; frames made so far (`done`); frames in all once ended (else -1).
+        self.history = np.zeros((0, 4 * self.window, self.bands), np.float32)
+        self.first = np.zeros(0, np.int64)
+        self.have = np.zeros(0, np.int64)
+        self.done = np.zeros(0, np.int64)
+        self.total = np.zeros(0, np.int64)
+        self.ending: list[int] = []  # rows whose audio ended since the last step (padded once computed)
+
+    def join(self, stream: GestureStream) -> int:
+        if stream.rate not in self.mels:
+            where = f"{stream.rate} Hz audio"
+            self.mels[stream.rate] = (LogMelBatch(stream.rate, self.fps, self.bands, where), [])
+        features, rows = self.mels[stream.rate]
+        row = super().join(stream)
+        stream.features, stream.feature_row = features, features.add()
+        rows.append(row)
+        if row == len(self.history):  # room for more rows, by doubling: joining n streams copies O(n) rows
+            grown = np.zeros((max(1, 2 * row), *self.history.shape[1:]), np.float32)
+            grown[:row] = self.history
+            self.history = grown
+            self.first, self.have, self.done, self.total = (
+                np.resize(a, len(grown)) for a in (self.first, self.have, self.done, self.total)
+            )
+        self.first[row] = self.have[row] = self.done[row] = 0
+        self.total[row] = -1
+        return row
+
+    def end(self, row: int, frames: int) -> None:
+        """The audio of the stream at `row` has ended after `frames` frames."""
+        self.total[row] = frames
+        self.ending.append(row)
+
+    def ready(self) -> np.ndarray:
+        self._features()
+        n = len(self.streams)
+        done, total = self.done[:n], self.total[:n]
+        whole = self.have[:n] - (done - self.first[:n]) >= self.window  # the next frame's window is in
+        return np.flatnonzero(np.where(total >= 0, done < total, whole))
+
+    def encode(self, rows: np.ndarray) -> torch.Tensor:
+        start = self.done[rows] - self.first[rows]
+        windows = self.history[rows[:, None], start[:, None] + np.arange(self.window)]  # (R, window, M)
+        windows = torch.from_numpy(windows.reshape(len(rows), -1)).to(self.model.device)
         return self.model.encoder.audio(windows)
+
+    def advanced(self, ready: np.ndarray, poses: np.ndarray) -> None:
+        super().advanced(ready, poses)
+        self.done[ready] += 1
+
+    def _features(self) -> None:
+        """The audio frames the streams' samples completed since the last step, into `history`."""
+        for features, feature_rows in self.mels.values():
+            at, frame, mel = features.compute()
+            if not len(at):
+                continue
+            rows = np.asarray(feature_rows)[at]
+            normalized = ((mel - self.mean) / self.std).astype(np.float32)
+            self._room(rows, frame + self.past)
+            spot = self.past + frame - self.first[rows]
+            self.history[rows, spot] = normalized
+            starts = frame == 0
+            if starts.any():
+                self.history[rows[starts], : self.past] = normalized[starts][:, None]
+            np.maximum.at(self.have, rows, spot + 1)
+        for row in self.ending:
+            end = self.total[row] + self.past + self.lookahead
+            self._room(np.array([row]), np.array([end - 1]))
+            have = self.have[row]
+            self.history[row, have : have + self.lookahead] = self.history[row, have - 1]
+            self.have[row] += self.lookahead
+        self.ending = []
+
+    def _room(self, rows: np.ndarray, last: np.ndarray) -> None:
+        """Room in `history` for entry `last` (counted from the stream's start, padding included) of each
+        row `rows`: the frames before the next frame's window dropped, then the array widened if still
+        needed."""
+        over = last - self.first[rows] >= self.history.shape[1]
+        if not over.any():
+            return
+        for row, end in zip(rows[over].tolist(), last[over].tolist()):
+            drop = int(self.done[row] - self.first[row])
+            if end - self.first[row] < self.history.shape[1] or drop == 0:
+                continue
+            keep = int(self.have[row]) - drop
+            self.history[row, :keep] = self.history[row, drop : drop + keep]
+            self.first[row] += drop
+            self.have[row] = keep
+        width = int((last - self.first[rows]).max()) + 1
+        if width > self.history.shape[1]:
+            width = max(width, 2 * self.history.shape[1])
+            wider = np.zeros((len(self.history), width, self.bands), np.float32)
+            wider[:, : self.history.shape[1]] = self.history
+            self.history = wider
 
 
 class GestureStream(Stream):
     """DiffMotion gestures from mono audio pushed in pieces of any size (float samples in [-1, 1]).
 
     `rate` defaults to the sample rate of the model's training audio (recorded in checkpoints since
-    streaming came); it must be a whole number of samples per motion frame.
+    streaming came); it must be a whole number of samples per motion frame. Its audio features are
+    computed and kept by its batch (`GestureBatch`), with those of the batch's other streams.
     """
+
+    features: LogMelBatch  # its batch's features of audio at its rate (its row: `feature_row`)
+    feature_row: int
 
     def __init__(
         self,
@@ -42,59 +151,48 @@ class GestureStream(Stream):
         rate = rate or spec.get("sample_rate")
         if rate is None:
             raise WalkdiffError("the checkpoint does not record its audio's sample rate: give the rate")
-        self.rate, self.fps = int(rate), spec["fps"]
-        self.past, self.lookahead, self.window = spec["past"], spec["lookahead"], model.window
-        self.features = LogMelStream(self.rate, self.fps, spec["audio_dim"], where=f"{self.rate} Hz audio")
-        normalizer = model.audio_normalizer
-        self.mean, self.std = normalizer.mean.cpu().numpy(), normalizer.std.cpu().numpy()
-        self.padded: list[np.ndarray] = []  # normalised audio frames from `first` - past on, edges repeated
-        self.first = 0  # the frame of padded[0] is first - past (older ones are dropped)
-        self.frame = 0  # the next frame to make
-        self.total: int | None = None  # frames in all, once the audio has ended
+        self.rate, self.fps, self.lookahead = int(rate), spec["fps"], spec["lookahead"]
+        samples_per_frame(self.rate, self.fps, f"{self.rate} Hz audio")  # refused before joining a batch
         self.made: list[np.ndarray] = []
         self.waited: list[float] = []  # per frame made: the audio time (s) it waited for
         self.batch = batch or GestureBatch(model, seed, sampler)
         self.row = self.batch.join(self)
 
+    @property
+    def received(self) -> int:
+        """Samples fed so far."""
+        return self.features.received[self.feature_row]
+
+    @property
+    def frame(self) -> int:
+        """The next frame to make."""
+        return int(self.batch.done[self.row])
+
     def feed(self, samples: np.ndarray) -> None:
         """Audio, without making frames (`GestureBatch.run` makes them for all streams at once)."""
-        self._append(self.features.push(samples))
+        self.features.push(self.feature_row, samples)
 
     def close(self) -> None:
         """The audio has ended: the last frames are made with the last audio frame repeated, as offline."""
-        if self.features.received == 0:
+        if self.received == 0:
             raise WalkdiffError("no audio arrived: expected at least one sample")
-        self._append(self.features.finish())
-        self.total = self.features.frames
-        self.padded += [self.padded[-1]] * self.lookahead
+        self.features.finish(self.feature_row)
+        self.batch.end(self.row, self.features.frames[self.feature_row])
 
     def ready(self) -> bool:
-        if self.total is not None:
-            return self.frame < self.total
-        return len(self.padded) >= self.frame - self.first + self.window
+        return self.row in self.batch.ready()
 
     def control(self) -> np.ndarray:
         """The flattened control window (window * M,) of the next frame, as `DiffMotion.control_windows`."""
-        start = self.frame - self.first
-        return np.concatenate(self.padded[start : start + self.window])
+        batch = self.batch
+        batch.ready()
+        start = self.frame - int(batch.first[self.row])
+        return batch.history[self.row, start : start + batch.window].reshape(-1)
 
     def receive(self, pose: np.ndarray) -> None:
-        needed = min(self.features.needed(self.frame + self.lookahead), self.features.received)
+        needed = min(self.features.needed(self.frame + self.lookahead), self.received)
         self.waited.append(needed / self.rate)
         self.made.append(pose)
-        self.frame += 1
-        drop = self.frame - self.first - 1
-        if drop > 256:  # keep the list short on long streams
-            del self.padded[:drop]
-            self.first += drop
-
-    def _append(self, mel: np.ndarray) -> None:
-        if len(mel) == 0:
-            return
-        normalized = ((mel - self.mean) / self.std).astype(np.float32)
-        if not self.padded:
-            self.padded = [normalized[0]] * self.past
-        self.padded.extend(normalized)
 
 
 def speech_input(audio: str, rate: int | None, trained_rate: int | None) -> PcmDecoder | WavDecoder:

@@ -1,9 +1,10 @@
 """Streams of one frame model advanced together: gestures from speech that is still arriving (gestures/
 stream.py), walking along a path that is still being drawn (walker/stream.py).
 
-A stream owns what its control needs (the audio features so far, or the path so far) and says when its
-next frame is ready; a batch of streams of one model carries their LSTM state and previous poses
-(`FrameStreams`) and, per frame, runs one forward for all the streams that have a frame ready:
+A stream takes in what its control needs (audio, or path points) and its batch knows when its next frame
+is ready (a walk stream keeps its path; a gesture batch keeps all its streams' audio features, computed
+together); a batch of streams of one model carries their LSTM state and previous poses (`FrameStreams`)
+and, per frame, runs one forward for all the streams that have a frame ready:
 
     batch = GestureBatch(model, seed=0)
     a, b = GestureStream(model, batch=batch), GestureStream(model, batch=batch)
@@ -49,23 +50,32 @@ class StreamBatch:
         self.streams.append(stream)
         return len(self.streams) - 1
 
-    def encode(self, ready: list) -> torch.Tensor:
-        """The encoded controls (R, control_hidden) of the streams `ready` for their next frame."""
+    def encode(self, rows: np.ndarray) -> torch.Tensor:
+        """The encoded controls (R, control_hidden) of the streams at `rows` for their next frame."""
         raise NotImplementedError
+
+    def ready(self) -> np.ndarray:
+        """The rows of the streams with a frame ready, in order."""
+        return np.flatnonzero([s.ready() for s in self.streams])
 
     def step(self) -> int:
         """One frame for every stream with one ready, in one forward; how many streams advanced."""
-        ready = [s for s in self.streams if s.ready()]
-        if not ready:
+        ready = self.ready()
+        if not len(ready):
             return 0
         every = len(ready) == len(self.streams)
-        rows = None if every else torch.tensor([s.row for s in ready], device=self.model.device)
+        rows = None if every else torch.from_numpy(ready).to(self.model.device)
         with torch.inference_mode():
             x = self.model.advance(self.frames, self.encode(ready), self.generator, rows)
             poses = self.model.normalizer.denormalize(x).cpu().numpy()
-        for stream, pose in zip(ready, poses):
-            stream.receive(pose)
+        self.advanced(ready, poses)
         return len(ready)
+
+    def advanced(self, ready: np.ndarray, poses: np.ndarray) -> None:
+        """The streams at rows `ready` made their frames `poses` (R, D)."""
+        streams = self.streams
+        for row, pose in zip(ready.tolist(), poses):
+            streams[row].receive(pose)
 
     def run(self) -> int:
         """Every frame that is ready, a frame at a time (streams behind others catch up); frames made."""

@@ -25,7 +25,8 @@ class WalkBatch(StreamBatch):
         if match is not None:
             model.match_streams(self.frames, match, sampler)
 
-    def encode(self, ready: list) -> torch.Tensor:
+    def encode(self, rows: np.ndarray) -> torch.Tensor:
+        ready = [self.streams[row] for row in rows.tolist()]
         control = torch.cat([s.control() for s in ready]).to(self.model.device)
         style = torch.tensor([s.style for s in ready], device=self.model.device)
         return self.model.encode_control(control[:, None], style)[:, 0]
