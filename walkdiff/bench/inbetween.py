@@ -1,16 +1,19 @@
 """`walkdiff bench inbetween` and `walkdiff bench edit`: the edits measured on held-out clips.
 
 In-betweening follows Harvey et al. 2020: in each held-out test clip of the generator's data (its data
-module's test split), a gap of N frames is cut after `context` frames of past context and filled from
-those and the one frame after the gap (the target keyframe); the fill is compared with the real frames by
-L2P, L2Q and NPSS (metrics/inbetween.py), beside the paper's two baselines: linear interpolation (the
-root lerped, every joint's rotation slerped, from the last context frame to the keyframe) and zero
-velocity (the last context frame held). Positions for L2P are taken relative to the last context frame
-(its root on the ground and its heading) and standardised per coordinate by the real gap frames'
-statistics. The same fills put back into their clips are scored by a trained evaluator: the style it
-recognises in the window over the gap, and foot skating over the gap's steps, each beside the real clip's.
-Intervals are 95% bootstrap intervals over clips (metrics/bootstrap.py `resample_weights`); a method beats
-another where the interval of the paired difference lies wholly on one side of 0.
+module's test split), a gap of N frames is cut after `context` frames of past context, at every offset
+the clip allows (at most `stride` frames apart, as Harvey et al. cut LaFAN1's test takes into windows at
+several offsets), and filled from those and the one frame after the gap (the target keyframe); the fill
+is compared with the real frames by L2P, L2Q and NPSS (metrics/inbetween.py), beside the paper's two
+baselines: linear interpolation (the root lerped, every joint's rotation slerped, from the last context
+frame to the keyframe) and zero velocity (the last context frame held). Positions for L2P are taken
+relative to the last context frame (its root on the ground and its heading) and standardised per
+coordinate by the real gap frames' statistics. The same fills put back into their clips are scored by a
+trained evaluator: the style it recognises in the window over the gap, and foot skating over the gap's
+steps, each beside the real clip's. Intervals are 95% bootstrap intervals over clips
+(metrics/bootstrap.py `resample_weights`), never over windows (one clip's windows share frames); a method
+beats another where the interval of the paired difference lies wholly on one side of 0. Each gap reports
+its windows, fills and clips, and in how many clips the fill is better on average.
 
 `bench edit` regenerates each test clip's legs or upper body in another style and reports the kept
 joints' largest error (body heights) and how often the evaluator recognises the asked style in the edited

@@ -6,7 +6,10 @@ joints an edit keeps) and where the root must pass (`RootKey`: a position on the
 a frame). Sampling then works as the long-motion sampler's inpainting does, generalised:
 
 - the known channels are replaced at every denoising step by the known values noised to that step's
-  level (MDM's in-betweening and editing), and put back exactly at the end;
+  level (MDM's in-betweening and editing), and put back exactly at the end; in-betweens are also
+  reconstruction-guided (Ho et al. 2022, `reconstruction_guided`): replacement shows the network the
+  known frames only through noise, so a long fill drifts from B; the guidance moves the made part's
+  clean estimate at every step toward what makes the network's estimate of the known frames agree;
 - a sequence longer than one window is denoised as overlapping windows *at every step* (their outputs
   averaged with tent weights where they overlap), so a gap of any length sees both of its ends at once;
 - the root passes its keys by projection: features hold root velocities, so where a clip ends up is a sum

@@ -24,7 +24,7 @@ class Edits:
     """What `StyledGenerator` does for the edits, on a request it has checked (`request`)."""
 
     resample = 0  # RePaint resampling of the edits' sampling (editing.masked_sample)
-    guide = 2.0  # in-betweens: reconstruction guidance of the fill (editing.reconstruction_guided)
+    guide = 1.0  # in-betweens: reconstruction guidance of the fill (editing.reconstruction_guided)
 
     def fill(
         self, request, a, b, frames: int, seed: int = 0, place: bool = False,
