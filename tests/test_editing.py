@@ -15,11 +15,12 @@ import torch
 import walkdiff
 from walkdiff.bench.inbetween import gap_starts, interpolated, zero_velocity
 from walkdiff.cli.main import main
+from walkdiff.diffusion import GaussianDiffusion
 from walkdiff.metrics.inbetween import l2p, l2q, npss
 from walkdiff.motion.bvh import read_bvh, write_bvh
 from walkdiff.motion.kinematics import motion_world_positions
 from walkdiff.motion.representation import FeatureLayout, root_trajectory
-from walkdiff.styled.editing import RootKey, project_root, tiled
+from walkdiff.styled.editing import RootKey, project_root, reconstruction_guided, tiled
 
 FAST = dict(sampler="ddim", steps=4)
 TOLERANCE = 1e-4  # body heights: kept parts come out as given
@@ -71,6 +72,11 @@ def test_inbetween_keeps_a_and_b_exactly_and_fills_the_gap(styled, clips):
     again = model.inbetween(a, b, frames=20, style="old", seed=1, **FAST)
     assert again.extra["kept_error"] < TOLERANCE and not np.allclose(again.positions[40:60], fill)
     model.resample = 0
+    assert model.guide > 0  # fills are guided by default; unguided ones keep the same guarantees
+    model.guide = 0.0
+    plain = model.inbetween(a, b, frames=20, style="old", seed=1, **FAST)
+    assert plain.extra["kept_error"] < TOLERANCE and not np.allclose(plain.positions[40:60], fill)
+    model.guide = type(model).guide
 
     only = model.inbetween(a, b, frames=20, style="old", seed=1, fill_only=True, **FAST)
     assert only.num_frames == 20
@@ -243,6 +249,23 @@ def test_tiled_windows_average_to_the_model_on_any_length():
     assert calls == [1, 1, 4]  # 57 frames: windows at 0, 12, 24 and 33
 
 
+def test_reconstruction_guidance_pulls_the_made_part_to_agree_with_the_known():
+    diffusion = GaussianDiffusion(10, prediction="x0")
+    # A toy network whose clean estimate of every frame is the mean over frames: the known frame's
+    # estimate depends on the made ones, so agreeing with it means moving them.
+    model_fn = lambda x, t: x.mean(1, keepdim=True).expand_as(x)  # noqa: E731
+    mask = torch.zeros(2, 6, 3, dtype=torch.bool)
+    mask[:, 0] = True
+    known = torch.ones(2, 6, 3)
+    x, t = torch.zeros(2, 6, 3), torch.full((2,), 4)
+    plain = model_fn(x, t)
+    guided = reconstruction_guided(model_fn, diffusion, mask, known, 1.0)(x, t)
+    assert torch.equal(guided[:, 0], plain[:, 0])  # known channels' output as the network's
+    assert (guided[:, 1:] > plain[:, 1:]).all()  # made ones moved toward what makes the known estimate 1
+    stronger = reconstruction_guided(model_fn, diffusion, mask, known, 3.0)(x, t)
+    assert (stronger[:, 1:] > guided[:, 1:]).all()
+
+
 def test_inbetween_measures():
     rng = np.random.default_rng(0)
     real = rng.normal(size=(3, 12, 5, 3))
@@ -265,3 +288,5 @@ def test_baselines_run_from_the_last_context_frame_to_the_keyframe():
     held = zero_velocity(walk, 40, 9)
     assert np.allclose(held.rotations, walk.rotations[39]) and np.allclose(held.positions, walk.positions[39])
     assert gap_starts(60, 45, 10, 3) == [10, 12, 14] and gap_starts(50, 45, 10, 3) == []
+    starts = gap_starts(100, 15, 10, 5)  # every offset of a clip, at most 5 frames apart
+    assert starts[0] == 10 and starts[-1] == 84 and max(np.diff(starts)) <= 5 and len(starts) == 16

@@ -1,16 +1,19 @@
 """`walkdiff bench inbetween` and `walkdiff bench edit`: the edits measured on held-out clips.
 
 In-betweening follows Harvey et al. 2020: in each held-out test clip of the generator's data (its data
-module's test split), a gap of N frames is cut after `context` frames of past context and filled from
-those and the one frame after the gap (the target keyframe); the fill is compared with the real frames by
-L2P, L2Q and NPSS (metrics/inbetween.py), beside the paper's two baselines: linear interpolation (the
-root lerped, every joint's rotation slerped, from the last context frame to the keyframe) and zero
-velocity (the last context frame held). Positions for L2P are taken relative to the last context frame
-(its root on the ground and its heading) and standardised per coordinate by the real gap frames'
-statistics. The same fills put back into their clips are scored by a trained evaluator: the style it
-recognises in the window over the gap, and foot skating over the gap's steps, each beside the real clip's.
-Intervals are 95% bootstrap intervals over clips (metrics/bootstrap.py `resample_weights`); a method beats
-another where the interval of the paired difference lies wholly on one side of 0.
+module's test split), a gap of N frames is cut after `context` frames of past context, at every offset
+the clip allows (at most `stride` frames apart, as Harvey et al. cut LaFAN1's test takes into windows at
+several offsets), and filled from those and the one frame after the gap (the target keyframe); the fill
+is compared with the real frames by L2P, L2Q and NPSS (metrics/inbetween.py), beside the paper's two
+baselines: linear interpolation (the root lerped, every joint's rotation slerped, from the last context
+frame to the keyframe) and zero velocity (the last context frame held). Positions for L2P are taken
+relative to the last context frame (its root on the ground and its heading) and standardised per
+coordinate by the real gap frames' statistics. The same fills put back into their clips are scored by a
+trained evaluator: the style it recognises in the window over the gap, and foot skating over the gap's
+steps, each beside the real clip's. Intervals are 95% bootstrap intervals over clips
+(metrics/bootstrap.py `resample_weights`), never over windows (one clip's windows share frames); a method
+beats another where the interval of the paired difference lies wholly on one side of 0. Each gap reports
+its windows, fills and clips, and in how many clips the fill is better on average.
 
 `bench edit` regenerates each test clip's legs or upper body in another style and reports the kept
 joints' largest error (body heights) and how often the evaluator recognises the asked style in the edited
@@ -137,12 +140,14 @@ def spliced(real: Motion, start: int, fill: Motion) -> Motion:
     return Motion(real.skeleton, rotations, positions, real.frame_time)
 
 
-def gap_starts(frames: int, gap: int, context: int, per_clip: int) -> list[int]:
-    """Up to `per_clip` gap starts, evenly spread, that leave `context` frames before and one after."""
+def gap_starts(frames: int, gap: int, context: int, stride: int) -> list[int]:
+    """Gap starts that leave `context` frames before and one after, from the first possible to the last,
+    evenly spread at most `stride` frames apart (windows at several offsets of one clip, as Harvey et al.
+    take LaFAN1's test windows; they share frames, so intervals resample clips, not windows)."""
     last = frames - gap - 1
     if last < context:
         return []
-    count = min(per_clip, last - context + 1)
+    count = -(-(last - context) // stride) + 1
     return sorted({round(x) for x in np.linspace(context, last, count)})
 
 
@@ -218,7 +223,7 @@ def bench_inbetween(
     out: str | Path,
     gaps: tuple[int, ...] = GAPS,
     context: int = CONTEXT,
-    per_clip: int = 3,
+    stride: int = 5,
     seed: int = 0,
     sampler: str = "ddpm",
     steps: int | None = None,
@@ -227,21 +232,28 @@ def bench_inbetween(
     fix_feet: bool = True,
     splits: tuple[str, ...] = ("test",),
     resample: int = 0,
+    samples: int = 1,
+    guide: float | None = None,
 ) -> dict:
     """Every gap's table (see the module docstring), the timing of a 45-frame fill, written to `out`.
-    `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's, by default)."""
+    `stride`: frames between the gap starts cut in one clip; `samples`: fills per gap (seeds), each scored
+    on its own; `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's);
+    `guide`: their reconstruction guidance (None: the API's)."""
     held = HeldOut(ckpt, evaluator, splits)
     held.generator.resample = resample
+    if guide is not None:
+        held.generator.guide = guide
     result = {
         "splits": list(splits),
-        "resample": resample,
-        "checkpoint": str(ckpt), "evaluator": str(evaluator), "context": context, "per_clip": per_clip,
+        "resample": resample, "guide": held.generator.guide,
+        "checkpoint": str(ckpt), "evaluator": str(evaluator), "context": context, "stride": stride,
+        "samples": samples,
         "sampler": sampler, "steps": steps, "seed": seed, "fix_feet": fix_feet, "test_clips": len(held.clips),
         "gaps": {},
     }  # fmt: skip
     for gap in gaps:
         result["gaps"][str(gap)] = _gap(
-            held, gap, context, per_clip, seed, sampler, steps, resamples, fix_feet
+            held, gap, context, stride, seed, sampler, steps, resamples, fix_feet, samples
         )
     result["timing"] = _timing(held, context, sampler, steps, repeats, seed)
     result["machine"] = machine()
@@ -249,27 +261,27 @@ def bench_inbetween(
     return result
 
 
-def _gap(held: HeldOut, gap, context, per_clip, seed, sampler, steps, resamples, fix_feet=True) -> dict:
+def _gap(held: HeldOut, gap, context, stride, seed, sampler, steps, resamples, fix_feet=True, samples=1):
     profile, generator = held.profile, held.generator
-    cases = [
+    windows = [
         (i, s)
         for i, (_, _, clip) in enumerate(held.clips)
-        for s in gap_starts(clip.num_frames, gap, context, per_clip)
+        for s in gap_starts(clip.num_frames, gap, context, stride)
     ]
+    # Each window filled `samples` times (seeds clip + 1000 k), each fill scored as a case of its own.
+    cases = [(i, s, seed + i + 1000 * k) for k in range(samples) for i, s in windows]
     if not cases:
         raise WalkdiffError(f"no test clip has {context} + {gap} + 1 frames: no gap of {gap} frames to fill")
     measures = {
         m: {"positions": [], "quaternions": [], "window": [], "skating": []} for m in (*METHODS, "real")
     }
     styles, clips = [], []
-    for i, s in progress(cases, desc=f"gap {gap}", unit="gap"):
+    for i, s, drawn in progress(cases, desc=f"gap {gap}", unit="fill"):
         style, _, real = held.clips[i]
         a = profile.to_file(real.slice(s - context, s))
         b = profile.to_file(real.slice(s + gap, s + gap + 1))
         request = held.request(style, sampler, steps)
-        made = generator.fill(
-            request, a, b, gap, seed + i, fill_only=True, fix_feet=fix_feet
-        ).take.canonical()
+        made = generator.fill(request, a, b, gap, drawn, fill_only=True, fix_feet=fix_feet).take.canonical()
         fills = {
             "model": made, "interpolation": interpolated(real, s, gap),
             "zero_velocity": zero_velocity(real, s, gap), "real": real.slice(s, s + gap),
@@ -315,7 +327,13 @@ def _gap(held: HeldOut, gap, context, per_clip, seed, sampler, steps, resamples,
         key: bootstrap(values["model"][key] - values["interpolation"][key], clips, resamples, seed)
         for key in ("l2p", "l2q", "npss")
     }
+    ids = np.unique(clips, return_inverse=True)[1]
+    better = {  # clips whose mean paired difference is below 0 (the model better there)
+        key: int((np.bincount(ids, values["model"][key] - values["interpolation"][key]) < 0).sum())
+        for key in ("l2p", "l2q", "npss")
+    }
     return {
+        "windows": len(windows),
         "cases": len(cases),
         "clips": len(set(clips.tolist())),
         "real": {
@@ -325,6 +343,7 @@ def _gap(held: HeldOut, gap, context, per_clip, seed, sampler, steps, resamples,
         **rows,
         "model_minus_interpolation": beats,
         "model_beats_interpolation": {k: v["interval"][1] < 0 for k, v in beats.items()},
+        "clips_model_better": better,
     }
 
 
@@ -407,10 +426,36 @@ def bench_edit(
     return result
 
 
+def format_differences(result: dict) -> list[str]:
+    """The model minus interpolation per gap as Markdown rows (docs/editing.md): mean [95% interval over
+    clips], with the windows and clips it rests on and the clips where the model is better on average."""
+    lines = [
+        "| gap | windows (clips) | L2P | NPSS | L2Q | clips better (L2P / NPSS) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for gap, row in result["gaps"].items():
+        d, better = row["model_minus_interpolation"], row["clips_model_better"]
+        cells = [_signed(d[m], 3 if m != "npss" else 4) for m in ("l2p", "npss", "l2q")]
+        count = f"{row['windows']} ({row['clips']})" + (
+            f" x {row['cases'] // row['windows']}" if row["cases"] > row["windows"] else ""
+        )
+        lines.append(
+            f"| {gap} | {count} | "
+            + " | ".join(cells)
+            + f" | {better['l2p']} / {better['npss']} of {row['clips']} |"
+        )
+    return lines
+
+
+def _signed(value: dict, digits: int) -> str:
+    low, high = value["interval"]
+    return f"{value['mean']:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]"
+
+
 def format_inbetween(result: dict) -> list[str]:
     """The in-betweening table as Markdown rows (docs/editing.md)."""
     lines = [
-        "| gap | cases (clips) | method | L2P | L2Q | NPSS | style vs real | skating vs real |",
+        "| gap | fills (clips) | method | L2P | L2Q | NPSS | style vs real | skating vs real |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for gap, row in result["gaps"].items():

@@ -526,7 +526,19 @@ def add_inbetween(bench) -> None:
     edit_bench_options(b)
     b.add_argument("--gaps", default="5,15,30,45", help="gap lengths in frames (default 5,15,30,45)")
     b.add_argument("--context", type=count(1), default=10, help="frames of past context (default 10)")
-    b.add_argument("--per-clip", type=count(1), default=3, help="gaps cut per clip at most (default 3)")
+    b.add_argument(
+        "--stride",
+        type=count(1),
+        default=5,
+        help="frames between the gaps cut in one clip, every offset at most this far apart (default 5)",
+    )
+    b.add_argument("--samples", type=count(1), default=1, help="fills per gap, each scored (default 1)")
+    b.add_argument(
+        "--guide",
+        type=number(0),
+        default=None,
+        help="reconstruction guidance of the fills (default the API's, model.guide; 0: none)",
+    )
     b.add_argument("--repeats", type=count(1), default=5, help="timed 45-frame fills (default 5)")
     b.add_argument("--no-fix-feet", dest="fix_feet", action="store_false", help="fills with feet as sampled")
     b.add_argument(
@@ -537,14 +549,14 @@ def add_inbetween(bench) -> None:
 
 
 def run_inbetween(args: argparse.Namespace) -> None:
-    from walkdiff.bench.inbetween import bench_inbetween, format_inbetween
+    from walkdiff.bench.inbetween import bench_inbetween, format_differences, format_inbetween
 
     result = bench_inbetween(
-        args.ckpt, args.evaluator, args.out, frame_counts(args.gaps, "--gaps"), args.context, args.per_clip,
+        args.ckpt, args.evaluator, args.out, frame_counts(args.gaps, "--gaps"), args.context, args.stride,
         args.seed, args.sampler, args.steps, args.resamples, args.repeats, args.fix_feet,
-        tuple(args.split.split(",")), args.resample,
+        tuple(args.split.split(",")), args.resample, args.samples, args.guide,
     )  # fmt: skip
-    print("\n".join(format_inbetween(result)))
+    print("\n".join(format_inbetween(result) + [""] + format_differences(result)))
 
 
 def add_edit(bench) -> None:

@@ -6,7 +6,10 @@ joints an edit keeps) and where the root must pass (`RootKey`: a position on the
 a frame). Sampling then works as the long-motion sampler's inpainting does, generalised:
 
 - the known channels are replaced at every denoising step by the known values noised to that step's
-  level (MDM's in-betweening and editing), and put back exactly at the end;
+  level (MDM's in-betweening and editing), and put back exactly at the end; in-betweens are also
+  reconstruction-guided (Ho et al. 2022, `reconstruction_guided`): replacement shows the network the
+  known frames only through noise, so a long fill drifts from B; the guidance moves the made part's
+  clean estimate at every step toward what makes the network's estimate of the known frames agree;
 - a sequence longer than one window is denoised as overlapping windows *at every step* (their outputs
   averaged with tent weights where they overlap), so a gap of any length sees both of its ends at once;
 - the root passes its keys by projection: features hold root velocities, so where a clip ends up is a sum
@@ -194,6 +197,7 @@ def masked_sample(
     overlap: int,
     progress=False,
     resample: int = 0,
+    guide: float = 0.0,
 ) -> np.ndarray:
     """Raw features (B, F, D) (B: the batch of `style`) made around the constraint's known channels and
     through its root keys; the known channels exactly as given. `resample`: RePaint's resampling, each
@@ -225,6 +229,8 @@ def masked_sample(
     table = sampling.table(diffusion)
     shape = (batch, frames, model.spec["feature_dim"])
     fn = projected if len(keys) > 1 else model_fn
+    if guide:
+        fn = reconstruction_guided(fn, diffusion, mask, known, guide)
     if resample and not any(table.prev_coef):
         x = resampled_steps(fn, diffusion, shape, table, mask, known, generator, resample, progress)
     else:
@@ -234,6 +240,26 @@ def masked_sample(
     raw = normalizer.denormalize(x).double().cpu()
     raw = torch.where(mask.cpu(), torch.from_numpy(constraint.known).double(), raw)
     return project_root(raw, keys, free_step, free_turn).numpy()
+
+
+def reconstruction_guided(model_fn, diffusion, mask, known, weight: float):
+    """`model_fn` whose clean estimate of the made channels is moved down the gradient, with respect to
+    x_t, of how far its estimate of the known channels is from the known values (reconstruction guidance,
+    Ho et al. 2022): the made part is pulled to what agrees with the known part in the network's eyes,
+    which replacement alone only does through noise."""
+    free = ~mask
+
+    def guided(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        with torch.enable_grad():
+            x = x.detach().requires_grad_(True)
+            out = model_fn(x, t)
+            x0 = diffusion.predict_x0(out, x, t)
+            miss = ((x0 - known) * mask).square().sum()
+            (grad,) = torch.autograd.grad(miss, x)
+        scale = diffusion.sqrt_alphas_cumprod[t].view(-1, 1, 1) * weight / 2
+        return moved_output(diffusion, out.detach(), x.detach(), t, -scale * grad * free)
+
+    return guided
 
 
 @torch.no_grad()

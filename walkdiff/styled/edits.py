@@ -24,6 +24,7 @@ class Edits:
     """What `StyledGenerator` does for the edits, on a request it has checked (`request`)."""
 
     resample = 0  # RePaint resampling of the edits' sampling (editing.masked_sample)
+    guide = 1.0  # in-betweens: reconstruction guidance of the fill (editing.reconstruction_guided)
 
     def fill(
         self, request, a, b, frames: int, seed: int = 0, place: bool = False,
@@ -38,7 +39,7 @@ class Edits:
             clip_a, clip_b, frames, profile, model.spec["window"], place
         )
         started = time.perf_counter()
-        raw = self._masked(request, constraint, seed, 1)[0]
+        raw = self._masked(request, constraint, seed, 1, self.guide)[0]
         if place:  # B turned and moved to where the fill ends
             clip_b = editing.turned(clip_b, profile, *editing.root_at(raw, constraint, before + frames))
         end = before + frames + after
@@ -150,7 +151,7 @@ class Edits:
             label=request.label, extra=extra,
         )  # fmt: skip
 
-    def _masked(self, request, constraint, seed: int, num: int) -> np.ndarray:
+    def _masked(self, request, constraint, seed: int, num: int, guide: float = 0.0) -> np.ndarray:
         """Raw features (num, F, D) of a constraint, drawn from `seed` (editing.masked_sample)."""
         generator = torch.Generator(device=self.model.device).manual_seed(seed)
         bar = progress(desc="sampling", unit="step")
@@ -158,6 +159,7 @@ class Edits:
             return editing.masked_sample(
                 self.model, constraint, _batch(request.style, num), _batch(request.content, num),
                 request.sampling, generator, request.overlap, step_hook(bar, 1), self.resample,
+                guide,
             )  # fmt: skip
 
 
