@@ -704,9 +704,12 @@ def test_sigint_on_a_walk_stream_process_exits_130_with_its_bvh(walker_ckpt, tmp
                "--ckpt", str(walker_ckpt), "--style", "old", "--speed", "0.7", "--path", "-",
                "--out", str(out)]  # fmt: skip
     env = {**os.environ, "WALKDIFF_PROGRESS": "0"}
+    # A shell's background job (`make test &`, nohup) inherits SIGINT ignored, and Python leaves it
+    # ignored; a terminal's foreground process has it at its default, as here.
     process = subprocess.Popen(
-        command, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+        command, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
     try:
         for k in range(31):
             process.stdin.write(json.dumps({"x": 0.0, "z": 0.1 * k}) + "\n")
