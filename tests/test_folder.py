@@ -513,6 +513,10 @@ def test_scan_reports_the_folder_and_writes_configs_that_fit_runs(takes, tmp_pat
     callbacks = {c.class_path.rsplit(".", 1)[-1]: c.init_args for c in generator.trainer.callbacks}
     assert callbacks["MotionMetrics"].evaluator_ckpt == "checkpoints/evaluator_my_takes_1/last.ckpt"
     assert callbacks["SampleClips"].content == "run"
+    # Two contents: the generator draws them alike; the evaluator sees every window once an epoch.
+    assert generator.data.init_args.balance == "content"
+    assert "balance" not in OmegaConf.load(out / "evaluator_my_takes_1.yaml").data.init_args
+    assert "the generator's config draws every content label alike (data.balance: content)" in text
     # The data module takes the written arguments as they are.
     module = MotionDataModule(**OmegaConf.to_container(generator.data.init_args))
     assert module.source.styles == ("angry", "neutral") and len(module.splits["test"]) == 4
@@ -536,6 +540,7 @@ def test_scan_without_labels_and_with_a_pattern(xia_dir, tmp_path):
     config = OmegaConf.load(out / "xia_bits.yaml")
     assert config.data.init_args.pattern == r"^(?P<style>[a-z]+)_\d+_(?P<content>\d)"
     assert [c.init_args.content for c in config.trainer.callbacks if "SampleClips" in c.class_path] == ["0"]
+    assert "balance" not in config.data.init_args  # one content: nothing to balance
 
 
 def _rename_joint(source: Path, target: Path, old: str, new: str) -> None:
