@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from walkdiff.cli.options import keyword_options, rig_options, sampler_options, style_options
-from walkdiff.common.arguments import count
+from walkdiff.cli.options import keyword_options, rig_options, styled_request_options
 
 KEEP_HELP = (
     "what to keep exactly: legs (the root and the legs), upper-body (every other joint), root (the root "
@@ -42,15 +41,10 @@ def add_parsers(sub) -> None:
 
 def edit_options(p: argparse.ArgumentParser) -> None:
     """What `inbetween` and `edit` share: the model, the output, the style, the sampler and the rig."""
-    p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
-    p.add_argument("--out", required=True, help="the BVH file to write (a JSON report is written beside it)")
-    style_options(p, "or none: the model's own motion, led by what is kept")
-    p.add_argument("--content", default="walk", help="content group (default walk)")
-    p.add_argument("--seed", type=count(0), default=0)
-    sampler_options(p, guidance=True)
-    p.add_argument(
-        "--overlap", type=count(0), default=None,
-        help="frames shared by neighbouring windows of a long edit (default: half a window)",
+    styled_request_options(
+        p, "the BVH file to write (a JSON report is written beside it)",
+        "or none: the model's own motion, led by what is kept",
+        "frames shared by neighbouring windows of a long edit (default: half a window)",
     )  # fmt: skip
     p.add_argument(
         "--no-fix-feet", dest="fix_feet", action="store_false",

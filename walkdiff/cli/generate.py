@@ -9,8 +9,7 @@ from walkdiff.cli.options import (
     PREVIEW_HELP,
     keyword_options,
     rig_options,
-    sampler_options,
-    style_options,
+    styled_request_options,
 )
 from walkdiff.common.arguments import count, number
 
@@ -46,18 +45,10 @@ def add_parsers(sub) -> None:
 
 def sampling_options(p: argparse.ArgumentParser) -> None:
     """What `sample` and `transfer` share: the model, the style, the sampler and how windows are joined."""
-    p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
-    p.add_argument("--out", required=True, help="output folder")
-    style_options(p, "or with sample a timeline: neutral@0,old@4s,angry+old@8s")
-    p.add_argument("--content", default="walk", help="content group (default walk)")
-    p.add_argument("--seed", type=count(0), default=0)
-    sampler_options(p, guidance=True)
-    p.add_argument(
-        "--overlap",
-        type=count(0),
-        default=None,
-        help="frames shared by consecutive windows (default: half a window)",
-    )
+    styled_request_options(
+        p, "output folder", "or with sample a timeline: neutral@0,old@4s,angry+old@8s",
+        "frames shared by consecutive windows (default: half a window)",
+    )  # fmt: skip
     p.add_argument(
         "--blend", type=count(0), default=None, help="of those, frames cross-faded (default: half)"
     )

@@ -74,6 +74,19 @@ def style_options(p: argparse.ArgumentParser, more: str = "") -> None:
     )  # fmt: skip
 
 
+def styled_request_options(p: argparse.ArgumentParser, out: str, style: str, overlap: str) -> None:
+    """What every command of the styled generator asks for, in one order: the checkpoint, the output
+    (`out`: its help), the style (`style`: what else --style takes), content, seed, the sampler with
+    guidance, and the frames neighbouring windows share (`overlap`: its help)."""
+    p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
+    p.add_argument("--out", required=True, help=out)
+    style_options(p, style)
+    p.add_argument("--content", default="walk", help="content group (default walk)")
+    p.add_argument("--seed", type=count(0), default=0)
+    sampler_options(p, guidance=True)
+    p.add_argument("--overlap", type=count(0), default=None, help=overlap)
+
+
 def frame_sampler_options(p: argparse.ArgumentParser) -> None:
     """Options of the per-frame sampler of DiffMotion and the path walker (no guidance)."""
     sampler_options(p, help=FRAME_SAMPLER_HELP)
