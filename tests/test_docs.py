@@ -487,7 +487,7 @@ def config_links() -> dict[str, set[str]]:
             if callback.get("class_path", "").endswith("RunCheckpoint"):
                 args = callback["init_args"]
                 checkpoint = RunCheckpoint(**args)
-                folder = args["dirpath"]
+                folder = args.get("dirpath") or config["trainer"]["default_root_dir"]
                 links[folder].add(f"{folder}/{checkpoint.link}.ckpt")
                 if args.get("save_last"):
                     links[folder].add(f"{folder}/last.ckpt")

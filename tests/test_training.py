@@ -328,6 +328,26 @@ def test_a_best_checkpoint_skips_validations_that_do_not_log_its_metric(
     assert "probe/score" in err
 
 
+def test_checkpoints_without_a_folder_follow_the_trainers_default_root_dir(tiny_root, tmp_path, monkeypatch):
+    """A RunCheckpoint without dirpath (as conf/*.yaml and `data scan` write them) saves and links under
+    trainer.default_root_dir, so `--trainer.default_root_dir` moves a variant's checkpoints away from the
+    config's own links (the quality suite trains Xia's contents from conf/xia_cpu.yaml so)."""
+    from walkdiff.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.argv", ["walkdiff"])
+    best = {"filename": "best-{epoch:04d}", "monitor": "diffusion/val", "mode": "min", "save_top_k": 1}
+    callbacks = [{"class_path": "walkdiff.callbacks.checkpoints.RunCheckpoint", "init_args": best}]
+    config = tmp_path / "moved.yaml"
+    config.write_text(probes.tiny_fit_config(tiny_root, "moved", epochs=1, batches=1, callbacks=callbacks))
+    text = config.read_text().replace("  max_time:", "  default_root_dir: checkpoints/mine\n  max_time:")
+    config.write_text(text)
+    assert main(["fit", "--config", str(config), "--trainer.default_root_dir", "checkpoints/variant"]) == 0
+    link = tmp_path / "checkpoints" / "variant" / "best.ckpt"
+    assert link.is_symlink() and link.resolve().parent.parent == link.parent
+    assert not (tmp_path / "checkpoints" / "mine").exists()
+
+
 def test_a_checkpoint_saved_before_run_folders_is_moved_aside_not_replaced(tmp_path, capsys):
     from walkdiff.callbacks.checkpoints import _point
 

@@ -58,17 +58,19 @@ class RunCheckpoint(ModelCheckpoint):
     never deleted). The MLflow run is tagged `walkdiff.checkpoints` with its folder.
 
     Args:
-        dirpath: folder of the run folders and of the links.
+        dirpath: folder of the run folders and of the links (default: the trainer's default_root_dir, so
+            `--trainer.default_root_dir` moves a config's checkpoints and links with it; a path written
+            in the config, or interpolated from it, stays where the file put it).
         link: name of the stable link, without `.ckpt` (default: `filename` up to its first `{`, so
             "best-{epoch:04d}" links best.ckpt). With `save_last`, last.ckpt links the run's last too.
         **kwargs: as ModelCheckpoint.
     """
 
-    def __init__(self, dirpath: str, link: str | None = None, **kwargs):
+    def __init__(self, dirpath: str | None = None, link: str | None = None, **kwargs):
         if kwargs.get("save_last") == "link":
             raise WalkdiffError("RunCheckpoint: save_last 'link' is not supported; use save_last: true")
         super().__init__(dirpath=dirpath, **kwargs)
-        self.root = Path(self.dirpath)
+        self.root = None if self.dirpath is None else Path(self.dirpath)
         self.link = link or re.split(r"[-_=]*\{", self.filename or "")[0]
         if not self.link:
             raise WalkdiffError(
@@ -79,6 +81,8 @@ class RunCheckpoint(ModelCheckpoint):
 
     def setup(self, trainer, pl_module, stage: str) -> None:
         if stage == "fit" and self.run_dir is None:
+            if self.root is None:
+                self.root = Path(trainer.default_root_dir)
             folder = None
             if trainer.is_global_zero:
                 folder = str(self.root / run_name(trainer))

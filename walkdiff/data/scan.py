@@ -411,17 +411,16 @@ trainer:
   limit_val_batches: {VAL_BATCHES}
   log_every_n_steps: 20
   num_sanity_val_steps: 0
-  default_root_dir: {_yaml(directory)}
+  default_root_dir: {_yaml(directory)}   # the checkpoints and their links (last.ckpt, best.ckpt)
 """
 
 
-def _last_checkpoint(directory: str) -> str:
+def _last_checkpoint() -> str:
     """The checkpoint without a monitor: last.ckpt (a link into the run's folder), after every validation
     and when training ends (`RunCheckpoint.on_train_end`)."""
     return f"""\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
-        dirpath: {_yaml(directory)}
         filename: last
         save_top_k: 1
 """
@@ -458,7 +457,6 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict, validat
     best = f"""\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
-        dirpath: {_yaml(directory)}
         filename: best
         monitor: style_acc/val
         mode: max
@@ -476,7 +474,7 @@ def _evaluator_config(name: str, folder: Path, summary: str, data: dict, validat
         + "  callbacks:\n"
         + (best if validate else "    # No val clips: no best checkpoint by validation accuracy.\n")
         + "    # The latest as last.ckpt: the generator's metrics use it.\n"
-        + _last_checkpoint(directory)
+        + _last_checkpoint()
         + """\
 model:
   class_path: walkdiff.models.evaluator.MotionEvaluator
@@ -511,7 +509,6 @@ def _generator_config(
         sampler: ddpm
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
-        dirpath: {_yaml(directory)}
         filename: "best-{{step:06d}}"
         monitor: metrics/fmd
         mode: min
@@ -545,7 +542,7 @@ def _generator_config(
         + _logger(name, name)
         + "  callbacks:\n"
         + (measured if validate else "")
-        + _last_checkpoint(directory)
+        + _last_checkpoint()
         + (previews if validate else "")
         + """\
 model:
