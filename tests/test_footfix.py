@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import synthetic
 import torch
 
@@ -178,3 +179,31 @@ def test_grounding_puts_planted_feet_back_on_the_training_floor(xia_dir):
     np.testing.assert_array_equal(ground(flying, skeleton, CONTACTS, heights), flying)
     partial = ground(shifted, skeleton, CONTACTS, np.array([heights[0], np.nan, np.nan, np.nan]))
     assert np.isfinite(partial).all()
+
+
+def test_grounding_moves_a_clip_only_by_how_much_further_off_it_is_than_real_clips(xia_dir):
+    """The tolerance is the 95th percentile of the shift real windows would get; a clip within it stays,
+    one beyond it moves by the excess only, towards the floor it would have reached."""
+    from walkdiff.data.xia import list_clips, load
+    from walkdiff.motion.footfix import ground, ground_shifts, ground_tolerance, planted_heights
+
+    clips = [c for c in list_clips(xia_dir) if c.content == 0][:8]
+    raws = [encode(resample(load(c), 30.0), synthetic.xia_profile(load(c))) for c in clips]
+    skeleton = load(clips[0]).skeleton
+    heights = planted_heights(raws, skeleton, CONTACTS)
+    tolerance = ground_tolerance(raws, skeleton, CONTACTS, heights, window=24)
+    windows = np.stack([r[s : s + 24] for r in raws for s in range(0, len(r) - 23, 24)])
+    sizes = np.abs(ground_shifts(windows, skeleton, CONTACTS, heights))
+    assert tolerance == pytest.approx(np.quantile(sizes, 0.95)) and 0 < tolerance < CONTACTS.height_threshold
+    layout = FeatureLayout(skeleton.num_joints)
+    root = layout.root_height.start
+    window = raws[0][None, :24]
+    full = ground_shifts(window, skeleton, CONTACTS, heights)[0]
+    for lift in (0.0, 3.0, -3.0):
+        moved = window.copy()
+        moved[..., root] += np.float32(lift)
+        shift = full - lift  # what the whole grounding would move it by
+        expected = np.sign(shift) * max(abs(shift) - tolerance, 0.0)
+        got = ground(moved, skeleton, CONTACTS, heights, tolerance)[0, 0, root] - moved[0, 0, root]
+        assert got == pytest.approx(expected, abs=1e-4)
+    assert ground_tolerance([r[:10] for r in raws], skeleton, CONTACTS, heights, window=24) == 0.0

@@ -346,6 +346,25 @@ def test_a_checkpoint_without_planted_heights_loads_but_refuses_grounding(ckpt, 
         model.to_raw(x)
 
 
+def test_a_checkpoint_without_a_ground_tolerance_grounds_by_the_whole_shift(ckpt, tmp_path):
+    """Saved before walkdiff measured how far real windows stand off: tolerance 0, as grounding was. A
+    checkpoint's tolerance is what grounding leaves alone: a huge one grounds nothing."""
+    saved = torch.load(ckpt, map_location="cpu", weights_only=False)
+    assert "ground_tolerance" in saved["state_dict"]  # measured when training started
+    dim = load_generator(ckpt).spec["feature_dim"]
+    x = torch.randn(2, 24, dim, generator=torch.Generator().manual_seed(0))
+    for tolerance, path in ((None, tmp_path / "old.ckpt"), (1e6, tmp_path / "huge.ckpt")):
+        state = dict(saved["state_dict"], planted_height=torch.zeros(4))  # the tiny data plants no foot
+        del state["ground_tolerance"]
+        if tolerance is not None:
+            state["ground_tolerance"] = torch.tensor(tolerance)
+        torch.save({**saved, "state_dict": state}, path)
+        model = load_generator(path)
+        assert float(model.ground_tolerance) == (0.0 if tolerance is None else tolerance)
+        same = np.array_equal(model.to_raw(x), model.to_raw(x, grounded=False))
+        assert same == (tolerance is not None)
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [

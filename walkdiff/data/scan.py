@@ -418,7 +418,7 @@ trainer:
 def _last_checkpoint() -> str:
     """The checkpoint without a monitor: last.ckpt (a link into the run's folder), after every validation
     and when training ends (`RunCheckpoint.on_train_end`)."""
-    return f"""\
+    return """\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         filename: last
@@ -454,7 +454,7 @@ def _without_validation(trainer: str) -> str:
 def _evaluator_config(name: str, folder: Path, summary: str, data: dict, validate: bool = True) -> str:
     directory = f"checkpoints/evaluator_{name}"
     trainer = _trainer(directory, EVALUATOR_STEPS, EVALUATOR_VALIDATE, "00:01:00:00")
-    best = f"""\
+    best = """\
     - class_path: walkdiff.callbacks.checkpoints.RunCheckpoint
       init_args:
         filename: best

@@ -67,7 +67,7 @@ from walkdiff.models.denoiser import MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.models.style_encoder import reference_windows
 from walkdiff.models.style_statistics import StyleStatistics
-from walkdiff.motion.footfix import ground, planted_heights
+from walkdiff.motion.footfix import ground, ground_tolerance, planted_heights
 from walkdiff.motion.representation import decode_root
 from walkdiff.spec import DataSpec
 
@@ -155,6 +155,8 @@ class StyledMotionDiffusion(MotionModule):
         # Measured on the unmirrored training clips: a mirrored copy keeps Xia's asymmetric offsets, so
         # its feet stand up to ~0.2 units off where a real foot on that side does.
         self.register_buffer("planted_height", torch.zeros(4))
+        # How far real windows' planted feet stand from it by the same measure: moved only beyond that.
+        self.register_buffer("ground_tolerance", torch.zeros(()))
         self.grounded_heights = True
 
     def setup(self, stage: str) -> None:
@@ -168,6 +170,9 @@ class StyledMotionDiffusion(MotionModule):
                 log.warning(f"contact joints never planted in the training data: {', '.join(never)}; "
                             "grounding of generated clips leaves them out")  # fmt: skip
             self.planted_height.copy_(torch.from_numpy(heights))
+            window = datamodule.hparams.window
+            tolerance = ground_tolerance(train, self.skeleton, self.contact_spec, heights, window)
+            self.ground_tolerance.fill_(tolerance)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         super().on_load_checkpoint(checkpoint)
@@ -179,6 +184,8 @@ class StyledMotionDiffusion(MotionModule):
         # Checkpoints saved before walkdiff measured planted feet load, but cannot be grounded.
         self.grounded_heights = "planted_height" in checkpoint["state_dict"]
         checkpoint["state_dict"].setdefault("planted_height", torch.full((4,), float("nan")))
+        # Saved before the tolerance was measured: grounded by the whole shift, as they were then.
+        checkpoint["state_dict"].setdefault("ground_tolerance", torch.zeros(()))
 
     @property
     def batches_done(self) -> int:
@@ -556,4 +563,5 @@ class StyledMotionDiffusion(MotionModule):
                 "this checkpoint was saved before walkdiff stored where planted feet stand, so its clips "
                 "cannot be grounded: retrain it, or pass --no-ground"
             )
-        return ground(raw, self.skeleton, self.contact_spec, self.planted_height.cpu().numpy())
+        heights = self.planted_height.cpu().numpy()
+        return ground(raw, self.skeleton, self.contact_spec, heights, float(self.ground_tolerance))

@@ -1,9 +1,9 @@
 """Foot clean-up: feet on the ground (`ground`, vertical) and pinned while in contact (`fix_feet`, IK).
 
 Grounding: a generated clip is shifted vertically so that its planted feet stand at the height real
-planted feet have in the training data. A whole-body offset of a few centimetres is invisible in a
-clip but puts swinging feet under the contact height, where they count as sliding.
-
+planted feet have in the training data, by as much as it is further off than real clips are by the same
+measure. A whole-body offset of a few centimetres is invisible in a clip but puts swinging feet under the
+contact height, where they count as sliding; so does moving a clip that stood as a real one does.
 
 For each foot (heel and toe joints of a `ContactSpec`), every run of frames in which the heel is in contact
 gets one ground point, the mean horizontal position of the heel over that run; the same for the toe. In a
@@ -247,13 +247,11 @@ def planted_heights(clips: list[np.ndarray], skeleton: Skeleton, spec: ContactSp
     )
 
 
-def ground(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray) -> np.ndarray:
-    """Raw features (..., F, D) lifted or lowered so their planted feet stand where real ones do.
-
-    One vertical shift per clip: the median, over its planted frames and joints (the clip's own contact
-    labels), of how far each planted joint is from that joint's planted height in the training data
-    (`planted_heights`). Only the root height changes; a clip with no planted frame is left as it is.
-    """
+def ground_shifts(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray) -> np.ndarray:
+    """(...,) vertical shift per clip of raw features (..., F, D) that puts its planted feet where real
+    ones stand: the median, over its planted frames and joints (the clip's own contact labels), of how
+    far each planted joint is from that joint's planted height in the training data (`planted_heights`);
+    0 for a clip with no planted frame."""
     raw = np.asarray(raw, dtype=np.float32)
     layout = FeatureLayout(skeleton.num_joints)
     feet = _feet_heights(torch.from_numpy(raw).double(), skeleton, spec).numpy()
@@ -263,6 +261,40 @@ def ground(raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.n
     has = np.isfinite(flat).any(-1)
     shift = np.zeros(flat.shape[:-1])
     shift[has] = np.nanmedian(flat[has], axis=-1)
+    return shift
+
+
+def ground_tolerance(
+    clips: list[np.ndarray], skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray, window: int
+) -> float:
+    """How far real clips' own planted feet stand from `heights` by `ground_shifts`' measure: the 95th
+    percentile of its size over the real clips' windows (non-overlapping, `window` frames). A generated
+    clip no further off than that stands as a real one does; shifting it anyway only adds the measure's
+    noise (on the turns folder it put more swinging feet under the contact height)."""
+    windows = [
+        np.asarray(clip[start : start + window], dtype=np.float32)
+        for clip in clips
+        for start in range(0, len(clip) - window + 1, window)
+    ]
+    if not windows:
+        return 0.0
+    sizes = np.abs(ground_shifts(np.stack(windows), skeleton, spec, heights))
+    return float(np.quantile(sizes, 0.95))
+
+
+def ground(
+    raw: np.ndarray, skeleton: Skeleton, spec: ContactSpec, heights: np.ndarray, tolerance: float = 0.0
+) -> np.ndarray:
+    """Raw features (..., F, D) lifted or lowered so their planted feet stand where real ones do.
+
+    One vertical shift per clip (`ground_shifts`), less `tolerance` (`ground_tolerance`: a clip is moved
+    only by how much further off it is than real clips are). Only the root height changes; a clip with no
+    planted frame is left as it is.
+    """
+    raw = np.asarray(raw, dtype=np.float32)
+    layout = FeatureLayout(skeleton.num_joints)
+    shift = ground_shifts(raw, skeleton, spec, heights)
+    shift = np.sign(shift) * np.maximum(np.abs(shift) - tolerance, 0.0)
     out = raw.copy()
     out[..., layout.root_height] += shift[..., None, None].astype(np.float32)
     return out
