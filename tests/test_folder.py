@@ -702,3 +702,42 @@ def test_a_folder_without_val_clips_gets_configs_that_do_not_validate(takes, tmp
         "or train without validation: trainer.limit_val_batches 0 (what `walkdiff data scan` writes for a "
         "folder without val clips)"
     )
+
+
+def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_path):
+    """One-off actions (contents whose root stays in place) beside walks: 3,600 batches; walks and runs
+    only: 1,800. Judged on another lab's export (Z up, centimetres, a static root above the hips, 60 fps)."""
+    import disguise
+
+    from walkdiff.motion.bvh import read_bvh, write_bvh
+
+    def folder(name: str, contents: dict[str, str]) -> Path:
+        root = tmp_path / name
+        root.mkdir()
+        rows = [["file", "style", "content"]]
+        for style in STYLES:
+            for content_id, label in contents.items():
+                for take in range(TAKES):
+                    stem = f"{style}_{content_id}_{take:03d}"
+                    motion = disguise.disguise(read_bvh(xia_dir / f"{stem}.bvh"))[0]
+                    write_bvh(root / f"clip_{len(rows):02d}.bvh", motion)
+                    rows.append([f"clip_{len(rows):02d}.bvh", style, label])
+        write_csv(root / "labels.csv", rows)
+        return root
+
+    varied = folder("varied", {"01": "walk", "18": "jab", "22": "sidekick"})
+    text = scan(varied, out=tmp_path / "varied_conf")
+    assert (
+        "the generator 3,600 batches of 64 windows (a varied folder: 2 of its 3 contents stay in place "
+        "(one-off actions: jab, sidekick), so twice the batches of a walking folder)"
+    ) in text
+    config = (tmp_path / "varied_conf" / "varied.yaml").read_text()
+    assert OmegaConf.create(config).trainer.max_steps == 3600
+    assert "# 3,600 batches: a varied folder: 2 of its 3 contents stay in place" in config
+    evaluator = OmegaConf.load(tmp_path / "varied_conf" / "evaluator_varied.yaml")
+    assert evaluator.trainer.max_steps == 1800
+
+    walking = folder("walking", {"01": "walk", "13": "run"})
+    text = scan(walking, out=tmp_path / "walking_conf")
+    assert "the generator 1,800 batches of 64 windows (all 2 contents travel (locomotion))" in text
+    assert OmegaConf.load(tmp_path / "walking_conf" / "walking.yaml").trainer.max_steps == 1800

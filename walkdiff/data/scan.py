@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import textwrap
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,8 +33,14 @@ STRIDES_PER_WINDOW = 6
 # Training budgets in batches, whatever the folder's size: the recipe of conf/xia_cpu.yaml reaches the
 # quality bar in about half its 1,800 batches on Xia walking, and a larger folder needs no more batches
 # to reach it (docs/training.md, "Time to the quality bar"). Windows beyond MAX_WINDOWS would be seen
-# less than about 4 times in the budget: the stride grows instead (up to half a window).
+# less than about 4 times in the budget: the stride grows instead (up to half a window). A varied folder
+# (one-off actions among its contents) gets twice the batches: docs/training.md, "The quality suite".
 GENERATOR_STEPS, GENERATOR_VALIDATE = 1800, 225
+VARIED_GENERATOR_STEPS = 3600
+# A content travels when its clips' root moves at least this many body heights a second (median over its
+# clips, along the ground, sampled every TRAVEL_STEP_SECONDS so standing sway does not add up). On Xia:
+# walks 0.71, runs 0.96, jumps 0.50, transitions 0.29; punches 0.04 and kicks 0.10 stay in place.
+TRAVEL_SPEED, TRAVEL_STEP_SECONDS = 0.25, 0.25
 EVALUATOR_STEPS, EVALUATOR_VALIDATE = 1800, 200
 MAX_WINDOWS = 30_000
 VAL_BATCHES = 32  # validation batches at most: a larger folder validates no longer
@@ -90,7 +97,8 @@ def scan(
     suggested = _suggest(found, fps)
     mirrors = bool(found.profile.mirror_pairs)  # mirror true is written: the labels of mirrored copies
     swaps = laterality.mirror_labels(source.styles, source.groups, mirror_labels) if mirrors else None
-    lines = _report(folder, source, clips, splits, found, suggested, swaps)
+    budget = _budget(source, clips, found)
+    lines = _report(folder, source, clips, splits, found, suggested, swaps, budget)
     if out is None:
         lines.append("To write the two training configs, scan again with an output folder (--out DIR).")
         return "\n".join(lines)
@@ -117,7 +125,9 @@ def scan(
     validate = bool(splits["val"])
     texts = (
         _evaluator_config(name, folder, summary, data, validate),
-        _generator_config(name, folder, summary, data | _balance(source), source.groups[0], validate),
+        _generator_config(
+            name, folder, summary, data | _balance(source), source.groups[0], budget, validate
+        ),
     )
     for path, text in zip(paths, texts):
         write_text(path, text)
@@ -149,6 +159,7 @@ class _Found:
     frames: np.ndarray  # per clip
     rates: np.ndarray  # frames per second, per clip
     durations: np.ndarray  # seconds, per clip
+    travel: np.ndarray  # body heights per second the root moves along the ground, per clip
 
 
 @dataclass(frozen=True)
@@ -164,7 +175,7 @@ class _Suggested:
 def _read_clips(source: FolderSource, clips) -> _Found:
     """Every clip read and checked to be on the first clip's skeleton."""
     skeleton_profile: SkeletonProfile | None = None
-    frames, frame_times = [], []
+    frames, frame_times, travel = [], [], []
     bar = progress(clips, desc="reading BVH", unit="file", show=len(clips) > PROGRESS_ABOVE)
     for clip in bar:
         motion = source.load(clip)
@@ -173,9 +184,50 @@ def _read_clips(source: FolderSource, clips) -> _Found:
         skeleton_profile.check(motion.skeleton, clip.path)
         frames.append(motion.num_frames)
         frame_times.append(motion.frame_time)
+        travel.append(_travel(skeleton_profile, motion))
     assert skeleton_profile is not None
     frames_arr, frame_times_arr = np.asarray(frames), np.asarray(frame_times)
-    return _Found(skeleton_profile, frames_arr, 1.0 / frame_times_arr, frames_arr * frame_times_arr)
+    return _Found(
+        skeleton_profile, frames_arr, 1.0 / frame_times_arr, frames_arr * frame_times_arr, np.asarray(travel)
+    )
+
+
+def _travel(profile: SkeletonProfile, motion) -> float:
+    """Body heights per second the clip's root moves along the ground (canonical axes: y up)."""
+    step = max(1, round(TRAVEL_STEP_SECONDS / motion.frame_time))
+    ground = profile.to_canonical(motion).positions[::step, 0][:, [0, 2]]
+    path = float(np.linalg.norm(np.diff(ground, axis=0), axis=1).sum())
+    return path / (motion.num_frames * motion.frame_time) / profile.body_height
+
+
+@dataclass(frozen=True)
+class _Budget:
+    """The generator's batches and why."""
+
+    steps: int
+    why: str
+
+
+def _budget(source: FolderSource, clips, found: _Found) -> _Budget:
+    """Twice the batches where several contents include one-off actions (contents whose clips stay in
+    place): on the turns folder of docs/training.md (walks and turns only) 2,700 batches of the recipe
+    already held the bar where 1,800 missed it on skating; a folder of one-off actions beside walks has
+    more kinds of motion to learn in the same windows."""
+    groups = source.groups
+    speeds = {g: [] for g in range(len(groups))}
+    for clip, speed in zip(clips, found.travel):
+        speeds[clip.content].append(speed)
+    still = [groups[g] for g, v in speeds.items() if v and float(np.median(v)) < TRAVEL_SPEED]
+    if len(groups) > 1 and still:
+        shown = ", ".join(still[:8]) + (f" and {len(still) - 8} more" if len(still) > 8 else "")
+        return _Budget(
+            VARIED_GENERATOR_STEPS,
+            f"a varied folder: {len(still)} of its {len(groups)} contents stay in place (one-off actions: "
+            f"{shown}), so twice the batches of a walking folder",
+        )
+    if len(groups) > 1:
+        return _Budget(GENERATOR_STEPS, f"all {len(groups)} contents travel (locomotion)")
+    return _Budget(GENERATOR_STEPS, "one content")
 
 
 def _suggest(found: _Found, fps: float | None) -> _Suggested:
@@ -240,6 +292,7 @@ def _report(
     found: _Found,
     suggested: _Suggested,
     swaps: laterality.MirrorLabels | None,
+    budget: _Budget,
 ) -> list[str]:
     """The report's lines: the skeleton profile, notes, frame rates, lengths, labels, mirrored labels,
     splits, suggestion."""
@@ -308,9 +361,9 @@ def _report(
         f"mirror {'true' if profile.mirror_pairs else 'false'}"
     )
     lines.append(
-        f"Budget: the evaluator {EVALUATOR_STEPS:,} batches, the generator {GENERATOR_STEPS:,} batches of 64 "
-        "windows, whatever the folder's size (the stride grows past "
-        f"{MAX_WINDOWS:,} windows instead)"
+        f"Budget: the evaluator {EVALUATOR_STEPS:,} batches, the generator {budget.steps:,} batches of 64 "
+        f"windows ({budget.why}), whatever the folder's size (the stride grows past {MAX_WINDOWS:,} "
+        "windows instead)"
     )
     return lines
 
@@ -494,10 +547,10 @@ model:
 
 
 def _generator_config(
-    name: str, folder: Path, summary: str, data: dict, content: str, validate: bool = True
+    name: str, folder: Path, summary: str, data: dict, content: str, budget: _Budget, validate: bool = True
 ) -> str:
     directory = f"checkpoints/{name}"
-    trainer = _trainer(directory, GENERATOR_STEPS, GENERATOR_VALIDATE, "00:04:00:00")
+    trainer = _trainer(directory, budget.steps, GENERATOR_VALIDATE, "00:04:00:00")
     measured = f"""\
     # FMD, style accuracy, diversity and foot skating of generated samples; placed before the
     # checkpoints that monitor its numbers.
@@ -536,6 +589,7 @@ def _generator_config(
 # Styled motion GAN-DDPM on {_comment(folder)}. Written by `walkdiff data scan`; sized for CPU
 # (modelled on conf/xia_cpu.yaml). Every key can be overridden on the command line.
 {summary}
+{textwrap.fill(f"{budget.steps:,} batches: {budget.why}.", 100, initial_indent="# ", subsequent_indent="# ")}
 """
         + first
         + (trainer if validate else _without_validation(trainer))
