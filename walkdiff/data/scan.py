@@ -125,9 +125,7 @@ def scan(
     validate = bool(splits["val"])
     texts = (
         _evaluator_config(name, folder, summary, data, validate),
-        _generator_config(
-            name, folder, summary, data | _balance(source), source.groups[0], budget, validate
-        ),
+        _generator_config(name, folder, summary, data | _balance(source), source.groups[0], budget, validate),
     )
     for path, text in zip(paths, texts):
         write_text(path, text)
