@@ -737,7 +737,8 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     evaluator = OmegaConf.load(tmp_path / "varied_conf" / "evaluator_varied.yaml")
     assert evaluator.trainer.max_steps == 1800
     # The generator's batches hold 96 windows, the evaluator's 64.
-    assert OmegaConf.create(config).data.init_args.batch_size == 96 and evaluator.data.init_args.batch_size == 64
+    assert OmegaConf.create(config).data.init_args.batch_size == 96
+    assert evaluator.data.init_args.batch_size == 64
 
     walking = folder("walking", {"01": "walk", "13": "run"})
     text = scan(walking, out=tmp_path / "walking_conf")

@@ -372,8 +372,8 @@ def _report(
     )
     lines.append(
         f"Budget: the evaluator {EVALUATOR_STEPS:,} batches of {BATCH_SIZE} windows, the generator "
-        f"{budget.steps:,} batches of {GENERATOR_BATCH_SIZE} ({budget.why}), whatever the folder's size (the stride grows past {MAX_WINDOWS:,} "
-        "windows instead)"
+        f"{budget.steps:,} batches of {GENERATOR_BATCH_SIZE} ({budget.why}), whatever the folder's size "
+        f"(the stride grows past {MAX_WINDOWS:,} windows instead)"
     )
     return lines
 
