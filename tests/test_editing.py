@@ -82,6 +82,11 @@ def test_inbetween_keeps_a_and_b_exactly_and_fills_the_gap(styled, clips):
     assert only.num_frames == 20
     np.testing.assert_allclose(only.positions, fill, atol=1e-6 * height)
 
+    # Four fills drawn by default, the smoothest kept; one: the first drawn, with the same guarantees.
+    one = model.inbetween(a, b, frames=20, style="old", seed=1, candidates=1, **FAST)
+    assert result.settings["candidates"] == 4 and one.settings["candidates"] == 1
+    assert one.extra["kept_error"] < TOLERANCE and not np.allclose(one.positions[40:60], fill)
+
 
 def test_a_gap_longer_than_a_window_and_placing_b(styled, clips):
     model = walkdiff.load(styled)
@@ -110,6 +115,10 @@ def test_bad_inbetweens_are_named(styled, clips, tmp_path):
     a, b = clips
     with pytest.raises(walkdiff.WalkdiffError, match="^frames: the gap must be at least 1 frame, got 0"):
         model.inbetween(a, b, frames=0, style="old", **FAST)
+    with pytest.raises(
+        walkdiff.WalkdiffError, match=r"^candidates: expected a whole number of fills >= 1, got 0"
+    ):
+        model.inbetween(a, b, frames=10, style="old", candidates=0, **FAST)
     other = tmp_path / "other.bvh"
     motion = read_bvh(a)
     skeleton = motion.skeleton
@@ -195,6 +204,13 @@ def test_commands_write_what_the_api_makes(styled, clips, tmp_path):
     assert report["fill_frames"] == [40, 52] and report["kept_error_body_heights"] < TOLERANCE
     api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, **FAST)
     assert api.to_bvh(tmp_path / "api.bvh").read_text() == out.read_text()
+    one = tmp_path / "one.bvh"
+    assert (
+        main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(one), "--candidates", "1", *args])
+        == 0
+    )
+    api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, candidates=1, **FAST)
+    assert api.to_bvh(tmp_path / "api_one.bvh").read_text() == one.read_text() != out.read_text()
     assert (
         main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(out), *args]) == 1
     )  # no overwrite
@@ -290,3 +306,31 @@ def test_baselines_run_from_the_last_context_frame_to_the_keyframe():
     assert gap_starts(60, 45, 10, 3) == [10, 12, 14] and gap_starts(50, 45, 10, 3) == []
     starts = gap_starts(100, 15, 10, 5)  # every offset of a clip, at most 5 frames apart
     assert starts[0] == 10 and starts[-1] == 84 and max(np.diff(starts)) <= 5 and len(starts) == 16
+
+
+def test_the_smoothest_fill_is_the_one_that_does_not_hurry_to_meet_its_ends(xia_dir):
+    """Of fills that all hold A's context and B's keyframe, `smoothest` keeps the real walk over the same
+    walk hurried through the gap (slow, then fast: out of step until the end) and over a jittered one,
+    whatever order they come in (a real Xia walk, 10 + 45 + 1 frames at 30 fps)."""
+    from walkdiff.data.xia import PROFILE
+    from walkdiff.motion.profile import SkeletonProfile
+    from walkdiff.motion.representation import encode
+    from walkdiff.styled.editing import smoothest
+
+    motion = read_bvh(xia_dir / "neutral_01_000.bvh")
+    profile = SkeletonProfile.detect(motion, PROFILE)
+    canonical = profile.to_canonical(motion)
+    canonical = type(canonical)(
+        canonical.skeleton, canonical.rotations[::4], canonical.positions[::4], canonical.frame_time * 4
+    )
+    raw = encode(canonical, profile)[:56].astype(np.float64)
+    held = np.zeros(56, bool)
+    held[:10] = held[55:] = True
+    u = np.linspace(0.0, 1.0, 46)[:-1]
+    hurried = raw.copy()
+    hurried[10:55] = raw[np.round(10 + 45 * u**2).astype(int)]
+    jittered = raw.copy()
+    jittered[10:55] += np.random.default_rng(0).normal(0.0, 0.02, raw[10:55].shape)
+    for order in ([raw, hurried, jittered], [hurried, jittered, raw], [jittered, raw, hurried]):
+        picked = smoothest(np.stack(order), held, canonical.skeleton, 30.0)
+        assert order[picked] is raw

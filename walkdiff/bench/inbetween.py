@@ -39,6 +39,7 @@ from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.representation import decode, root_heading, yaw_matrix
 from walkdiff.motion.rotations import matrix_to_quaternion
 from walkdiff.motion.skeleton import Motion
+from walkdiff.styled.edits import CANDIDATES
 from walkdiff.styled.pipeline import StyledGenerator
 
 GAPS = (5, 15, 30, 45)
@@ -234,11 +235,13 @@ def bench_inbetween(
     resample: int = 0,
     samples: int = 1,
     guide: float | None = None,
+    candidates: int = CANDIDATES,
 ) -> dict:
     """Every gap's table (see the module docstring), the timing of a 45-frame fill, written to `out`.
     `stride`: frames between the gap starts cut in one clip; `samples`: fills per gap (seeds), each scored
     on its own; `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's);
-    `guide`: their reconstruction guidance (None: the API's)."""
+    `guide`: their reconstruction guidance (None: the API's); `candidates`: fills drawn for each, the
+    smoothest kept (the API's default)."""
     held = HeldOut(ckpt, evaluator, splits)
     held.generator.resample = resample
     if guide is not None:
@@ -247,21 +250,24 @@ def bench_inbetween(
         "splits": list(splits),
         "resample": resample, "guide": held.generator.guide,
         "checkpoint": str(ckpt), "evaluator": str(evaluator), "context": context, "stride": stride,
-        "samples": samples,
+        "samples": samples, "candidates": candidates,
         "sampler": sampler, "steps": steps, "seed": seed, "fix_feet": fix_feet, "test_clips": len(held.clips),
         "gaps": {},
     }  # fmt: skip
     for gap in gaps:
         result["gaps"][str(gap)] = _gap(
-            held, gap, context, stride, seed, sampler, steps, resamples, fix_feet, samples
+            held, gap, context, stride, seed, sampler, steps, resamples, fix_feet, samples, candidates
         )
-    result["timing"] = _timing(held, context, sampler, steps, repeats, seed)
+    result["timing"] = _timing(held, context, sampler, steps, repeats, seed, candidates)
     result["machine"] = machine()
     report(out, result)
     return result
 
 
-def _gap(held: HeldOut, gap, context, stride, seed, sampler, steps, resamples, fix_feet=True, samples=1):
+def _gap(
+    held: HeldOut, gap, context, stride, seed, sampler, steps, resamples, fix_feet=True, samples=1,
+    candidates=CANDIDATES,
+):  # fmt: skip
     profile, generator = held.profile, held.generator
     windows = [
         (i, s)
@@ -281,7 +287,10 @@ def _gap(held: HeldOut, gap, context, stride, seed, sampler, steps, resamples, f
         a = profile.to_file(real.slice(s - context, s))
         b = profile.to_file(real.slice(s + gap, s + gap + 1))
         request = held.request(style, sampler, steps)
-        made = generator.fill(request, a, b, gap, drawn, fill_only=True, fix_feet=fix_feet).take.canonical()
+        made = generator.fill(
+            request, a, b, gap, drawn, fill_only=True, fix_feet=fix_feet, candidates=candidates
+        )
+        made = made.take.canonical()
         fills = {
             "model": made, "interpolation": interpolated(real, s, gap),
             "zero_velocity": zero_velocity(real, s, gap), "real": real.slice(s, s + gap),
@@ -347,7 +356,9 @@ def _gap(held: HeldOut, gap, context, stride, seed, sampler, steps, resamples, f
     }
 
 
-def _timing(held: HeldOut, context, sampler, steps, repeats: int, seed: int, gap: int = 45) -> dict:
+def _timing(
+    held: HeldOut, context, sampler, steps, repeats: int, seed: int, candidates: int, gap: int = 45
+) -> dict:
     """Median seconds of a `gap`-frame fill (the API call, model loaded) on this machine's threads."""
     style, _, real = max(held.clips, key=lambda c: c[2].num_frames)
     if real.num_frames < context + 2:
@@ -358,9 +369,12 @@ def _timing(held: HeldOut, context, sampler, steps, repeats: int, seed: int, gap
     spent = []
     for _ in range(repeats):
         started = time.perf_counter()
-        held.generator.fill(request, a, b, gap, seed, fill_only=True)
+        held.generator.fill(request, a, b, gap, seed, fill_only=True, candidates=candidates)
         spent.append(time.perf_counter() - started)
-    return {"gap": gap, "median_s": round(float(np.median(spent)), 3), "threads": torch.get_num_threads()}
+    return {
+        "gap": gap, "candidates": candidates, "median_s": round(float(np.median(spent)), 3),
+        "threads": torch.get_num_threads(),
+    }  # fmt: skip
 
 
 # ---------------------------------------------------------------- edits

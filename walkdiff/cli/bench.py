@@ -534,6 +534,10 @@ def add_inbetween(bench) -> None:
     )
     b.add_argument("--samples", type=count(1), default=1, help="fills per gap, each scored (default 1)")
     b.add_argument(
+        "--candidates", type=count(1), default=4,
+        help="fills drawn for each, the smoothest kept (default 4, as `walkdiff inbetween`; 1: one)",
+    )  # fmt: skip
+    b.add_argument(
         "--guide",
         type=number(0),
         default=None,
@@ -554,7 +558,7 @@ def run_inbetween(args: argparse.Namespace) -> None:
     result = bench_inbetween(
         args.ckpt, args.evaluator, args.out, frame_counts(args.gaps, "--gaps"), args.context, args.stride,
         args.seed, args.sampler, args.steps, args.resamples, args.repeats, args.fix_feet,
-        tuple(args.split.split(",")), args.resample, args.samples, args.guide,
+        tuple(args.split.split(",")), args.resample, args.samples, args.guide, args.candidates,
     )  # fmt: skip
     print("\n".join(format_inbetween(result) + [""] + format_differences(result)))
 

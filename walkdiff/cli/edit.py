@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from walkdiff.cli.options import keyword_options, rig_options, styled_request_options
+from walkdiff.common.arguments import count
 
 KEEP_HELP = (
     "what to keep exactly: legs (the root and the legs), upper-body (every other joint), root (the root "
@@ -25,6 +26,10 @@ def add_parsers(sub) -> None:
         help="let the fill choose where B goes (default: B stays where its file puts it)",
     )  # fmt: skip
     p.add_argument("--fill-only", action="store_true", help="write the fill alone (default: A, fill and B)")
+    p.add_argument(
+        "--candidates", type=count(1), default=4,
+        help="fills drawn together, the one that moves most smoothly kept (default 4, as the API; 1: one)",
+    )  # fmt: skip
     edit_options(p)
     p.set_defaults(run=run_edit)
 

@@ -11,6 +11,7 @@ from walkdiff.common.errors import WalkdiffError, command
 from walkdiff.common.files import check_free, output_set, write_json
 from walkdiff.models.pipeline import Generated, specs_first
 from walkdiff.motion.bvh import write_bvh
+from walkdiff.styled.edits import CANDIDATES
 from walkdiff.styled.pipeline import StyledGenerator
 
 
@@ -37,6 +38,7 @@ def inbetween(
     fix_feet: bool = True,
     overwrite: bool = False,
     device: str = "cpu",
+    candidates: int = CANDIDATES,
     **request,
 ) -> dict:
     """`walkdiff inbetween`: A, a fill of `frames` frames and B as `out` (or the fill alone), and
@@ -45,7 +47,7 @@ def inbetween(
     out, report = _outputs(out, overwrite)
     generator = StyledGenerator.load(ckpt, device)
     request = generator.request(style, unstyled=True, **request)
-    result = generator.fill(request, a, b, frames, seed, place, fill_only, fix_feet)
+    result = generator.fill(request, a, b, frames, seed, place, fill_only, fix_feet, candidates)
     head = {"command": "inbetween", "checkpoint": str(ckpt), "a": str(a), "b": str(b)}
     found = {"fill_frames": list(result.extra["fill"]), "kept_error_body_heights": result.extra["kept_error"]}
     return _written(out, report, head, result, found)

@@ -19,6 +19,9 @@ from walkdiff.styled import keys as keyframes
 from walkdiff.styled.generation import batch_of as _batch
 from walkdiff.styled.generation import check_finite
 
+# Fills an in-between draws, keeping the one that moves most smoothly (editing.smoothest).
+CANDIDATES = 4
+
 
 class Edits:
     """What `StyledGenerator` does for the edits, on a request it has checked (`request`)."""
@@ -28,27 +31,30 @@ class Edits:
 
     def fill(
         self, request, a, b, frames: int, seed: int = 0, place: bool = False,
-        fill_only: bool = False, fix_feet: bool = True,
+        fill_only: bool = False, fix_feet: bool = True, candidates: int = CANDIDATES,
     ) -> Generated:  # fmt: skip
         """`inbetween`'s work on a checked request."""
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise WalkdiffError(f"--frames: the gap must be at least 1 frame, got {frames!r}")
+        if not isinstance(candidates, int) or isinstance(candidates, bool) or candidates < 1:
+            raise WalkdiffError(f"--candidates: expected a whole number of fills >= 1, got {candidates!r}")
         clip_a, clip_b = self.source(a, "A", 1), self.source(b, "B", 1)
         model, profile = self.model, self.model.profile
         constraint, before, after = editing.inbetween_constraint(
             clip_a, clip_b, frames, profile, model.spec["window"], place
         )
+        end = before + frames + after
+        held = np.zeros(constraint.frames, bool)
+        held[:before] = held[before + frames : end] = True
         started = time.perf_counter()
-        raw = self._masked(request, constraint, seed, 1, self.guide)[0]
+        raws = self._masked(request, constraint, seed, candidates, self.guide)
+        raw = raws[editing.smoothest(raws[:, :end], held[:end], model.skeleton, self.fps)]
         if place:  # B turned and moved to where the fill ends
             clip_b = editing.turned(clip_b, profile, *editing.root_at(raw, constraint, before + frames))
-        end = before + frames + after
         kept = _joined(
             [clip_a.slice(clip_a.num_frames - before, clip_a.num_frames), frames, clip_b.slice(0, after)]
             + ([constraint.frames - end] if constraint.frames > end else [])
         )
-        held = np.zeros(constraint.frames, bool)
-        held[:before] = held[before + frames : end] = True
         motion = editing.finish(raw, constraint, model.skeleton, profile, self.fps, kept, held, [], fix_feet)
         check_finite([motion], request.sampling)
         gap = motion.slice(before, before + frames)
@@ -64,7 +70,7 @@ class Edits:
         settings = {
             **request.record(), "content": request.content_name, "frames": frames, "place": place,
             "fill_only": fill_only, "context": [before, after], "fps": self.fps, **request.sampling.record(),
-            "overlap": request.overlap, "fix_feet": fix_feet,
+            "overlap": request.overlap, "fix_feet": fix_feet, "candidates": candidates,
         }  # fmt: skip
         fill = (0, frames) if fill_only else (clip_a.num_frames, clip_a.num_frames + frames)
         extra = {"fill": fill, "kept_error": error}

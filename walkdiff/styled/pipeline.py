@@ -38,7 +38,7 @@ from walkdiff.motion.representation import FeatureLayout, decode, encode, start_
 from walkdiff.motion.skeleton import Motion
 from walkdiff.retarget.take import Take
 from walkdiff.retarget.target_rig import TargetRig
-from walkdiff.styled.edits import Edits
+from walkdiff.styled.edits import CANDIDATES, Edits
 from walkdiff.styled.generation import (
     Sampling,
     check_finite,
@@ -188,17 +188,19 @@ class StyledGenerator(Pipeline, Edits):
         to_map=None,
         style_clips=None,
         match_clips: float = MATCH_CLIPS,
+        candidates: int = CANDIDATES,
     ) -> Generated:
         """`frames` frames from the end of clip `a` to the start of clip `b` (Motions, Takes or BVH files on
         the model's skeleton), in `style` (as `sample` takes it; none: the model's own motion, led by the
         clips). B stays where its file puts it, or with `place` where the fill brings it. The take is A,
         the fill and B as one clip (A and B exactly as given), or with `fill_only` the fill alone;
-        `extra` holds the fill's frames and the kept frames' error in body heights."""
+        `extra` holds the fill's frames and the kept frames' error in body heights. `candidates` fills
+        are drawn together and the one that moves most smoothly is kept (1: the first drawn)."""
         request = self.request(
             style, content, sampler, steps, eta, guidance, overlap, None, to, to_map, style_clips,
             match_clips=match_clips, unstyled=True,
         )  # fmt: skip
-        return self.fill(request, a, b, frames, seed, place, fill_only, fix_feet)
+        return self.fill(request, a, b, frames, seed, place, fill_only, fix_feet, candidates)
 
     @python_api
     def edit(
