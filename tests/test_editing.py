@@ -82,10 +82,11 @@ def test_inbetween_keeps_a_and_b_exactly_and_fills_the_gap(styled, clips):
     assert only.num_frames == 20
     np.testing.assert_allclose(only.positions, fill, atol=1e-6 * height)
 
-    # Four fills drawn by default, the smoothest kept; one: the first drawn, with the same guarantees.
-    one = model.inbetween(a, b, frames=20, style="old", seed=1, candidates=1, **FAST)
-    assert result.settings["candidates"] == 4 and one.settings["candidates"] == 1
-    assert one.extra["kept_error"] < TOLERANCE and not np.allclose(one.positions[40:60], fill)
+    # One fill by default; with candidates, several drawn together and the smoothest kept, with the same
+    # guarantees.
+    four = model.inbetween(a, b, frames=20, style="old", seed=1, candidates=4, **FAST)
+    assert result.settings["candidates"] == 1 and four.settings["candidates"] == 4
+    assert four.extra["kept_error"] < TOLERANCE and not np.allclose(four.positions[40:60], fill)
 
 
 def test_a_gap_longer_than_a_window_and_placing_b(styled, clips):
@@ -204,13 +205,13 @@ def test_commands_write_what_the_api_makes(styled, clips, tmp_path):
     assert report["fill_frames"] == [40, 52] and report["kept_error_body_heights"] < TOLERANCE
     api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, **FAST)
     assert api.to_bvh(tmp_path / "api.bvh").read_text() == out.read_text()
-    one = tmp_path / "one.bvh"
+    four = tmp_path / "four.bvh"
     assert (
-        main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(one), "--candidates", "1", *args])
+        main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(four), "--candidates", "4", *args])
         == 0
     )
-    api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, candidates=1, **FAST)
-    assert api.to_bvh(tmp_path / "api_one.bvh").read_text() == one.read_text() != out.read_text()
+    api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, candidates=4, **FAST)
+    assert api.to_bvh(tmp_path / "api_four.bvh").read_text() == four.read_text() != out.read_text()
     assert (
         main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(out), *args]) == 1
     )  # no overwrite

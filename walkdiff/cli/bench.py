@@ -534,8 +534,8 @@ def add_inbetween(bench) -> None:
     )
     b.add_argument("--samples", type=count(1), default=1, help="fills per gap, each scored (default 1)")
     b.add_argument(
-        "--candidates", type=count(1), default=4,
-        help="fills drawn for each, the smoothest kept (default 4, as `walkdiff inbetween`; 1: one)",
+        "--candidates", type=count(1), default=1,
+        help="fills drawn for each, the smoothest kept (default 1, as `walkdiff inbetween`)",
     )  # fmt: skip
     b.add_argument(
         "--guide",

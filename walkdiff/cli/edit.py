@@ -27,8 +27,8 @@ def add_parsers(sub) -> None:
     )  # fmt: skip
     p.add_argument("--fill-only", action="store_true", help="write the fill alone (default: A, fill and B)")
     p.add_argument(
-        "--candidates", type=count(1), default=4,
-        help="fills drawn together, the one that moves most smoothly kept (default 4, as the API; 1: one)",
+        "--candidates", type=count(1), default=1,
+        help="fills drawn together, the one that moves most smoothly kept (default 1, as the API)",
     )  # fmt: skip
     edit_options(p)
     p.set_defaults(run=run_edit)
