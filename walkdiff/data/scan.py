@@ -22,6 +22,14 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.common.files import write_text
 from walkdiff.common.progress import progress
 from walkdiff.data import laterality
+from walkdiff.data.budget import (
+    BATCH_SIZE,
+    EVALUATOR_STEPS,
+    GENERATOR_BATCH_SIZE,
+    Budget,
+    generator_budget,
+    root_travel,
+)
 from walkdiff.data.clips import ContentSelection
 from walkdiff.data.folder import NO_CONTENT, NO_STYLE, SPLITS, FolderSource
 from walkdiff.motion.profile import SkeletonProfile
@@ -30,22 +38,9 @@ TRAINING_FPS = 30  # the suggested rate for data at 30 fps or more
 WINDOW_SECONDS = 0.8  # the suggested window, at most the 10th percentile clip length
 MIN_WINDOW = 8
 STRIDES_PER_WINDOW = 6
-# Training budgets in batches, whatever the folder's size: the recipe of conf/xia_cpu.yaml reaches the
-# quality bar in about half its 1,800 batches on Xia walking, and a larger folder needs no more batches
-# to reach it (docs/training.md, "Time to the quality bar"). Windows beyond MAX_WINDOWS would be seen
-# less than about 4 times in the budget: the stride grows instead (up to half a window). A varied folder
-# (one-off actions among its contents) gets twice the batches: docs/training.md, "The quality suite".
-GENERATOR_STEPS, GENERATOR_VALIDATE = 1800, 225
-# Windows per batch. The generator's 96 (the evaluator's 64): on the turns folder of docs/training.md
-# 1,800 batches of 96 hold every figure of the quality bar, where 1,800 of 64 missed it on skating, at
-# 1.48x the seconds per batch (the issue's bound: 1.5x).
-BATCH_SIZE, GENERATOR_BATCH_SIZE = 64, 96
-VARIED_GENERATOR_STEPS = 3600
-# A content travels when its clips' root moves at least this many body heights a second (median over its
-# clips, along the ground, sampled every TRAVEL_STEP_SECONDS so standing sway does not add up). On Xia:
-# walks 0.71, runs 0.96, jumps 0.50, transitions 0.29; punches 0.04 and kicks 0.10 stay in place.
-TRAVEL_SPEED, TRAVEL_STEP_SECONDS = 0.25, 0.25
-EVALUATOR_STEPS, EVALUATOR_VALIDATE = 1800, 200
+# Validations in batches (the budgets themselves: walkdiff/data/budget.py). Windows beyond MAX_WINDOWS
+# would be seen less than about 4 times in a budget: the stride grows instead (up to half a window).
+GENERATOR_VALIDATE, EVALUATOR_VALIDATE = 225, 200
 MAX_WINDOWS = 30_000
 VAL_BATCHES = 32  # validation batches at most: a larger folder validates no longer
 PERCENTILES = (5, 25, 50, 75, 95)
@@ -101,7 +96,7 @@ def scan(
     suggested = _suggest(found, fps)
     mirrors = bool(found.profile.mirror_pairs)  # mirror true is written: the labels of mirrored copies
     swaps = laterality.mirror_labels(source.styles, source.groups, mirror_labels) if mirrors else None
-    budget = _budget(source, clips, found)
+    budget = generator_budget(source.groups, [c.content for c in clips], found.travel)
     lines = _report(folder, source, clips, splits, found, suggested, swaps, budget)
     if out is None:
         lines.append("To write the two training configs, scan again with an output folder (--out DIR).")
@@ -194,50 +189,12 @@ def _read_clips(source: FolderSource, clips) -> _Found:
         skeleton_profile.check(motion.skeleton, clip.path)
         frames.append(motion.num_frames)
         frame_times.append(motion.frame_time)
-        travel.append(_travel(skeleton_profile, motion))
+        travel.append(root_travel(skeleton_profile, motion))
     assert skeleton_profile is not None
     frames_arr, frame_times_arr = np.asarray(frames), np.asarray(frame_times)
     return _Found(
         skeleton_profile, frames_arr, 1.0 / frame_times_arr, frames_arr * frame_times_arr, np.asarray(travel)
     )
-
-
-def _travel(profile: SkeletonProfile, motion) -> float:
-    """Body heights per second the clip's root moves along the ground (canonical axes: y up)."""
-    step = max(1, round(TRAVEL_STEP_SECONDS / motion.frame_time))
-    ground = profile.to_canonical(motion).positions[::step, 0][:, [0, 2]]
-    path = float(np.linalg.norm(np.diff(ground, axis=0), axis=1).sum())
-    return path / (motion.num_frames * motion.frame_time) / profile.body_height
-
-
-@dataclass(frozen=True)
-class _Budget:
-    """The generator's batches and why."""
-
-    steps: int
-    why: str
-
-
-def _budget(source: FolderSource, clips, found: _Found) -> _Budget:
-    """Twice the batches where several contents include one-off actions (contents whose clips stay in
-    place): on the turns folder of docs/training.md (walks and turns only) 2,700 batches of the recipe
-    already held the bar where 1,800 missed it on skating; a folder of one-off actions beside walks has
-    more kinds of motion to learn in the same windows."""
-    groups = source.groups
-    speeds = {g: [] for g in range(len(groups))}
-    for clip, speed in zip(clips, found.travel):
-        speeds[clip.content].append(speed)
-    still = [groups[g] for g, v in speeds.items() if v and float(np.median(v)) < TRAVEL_SPEED]
-    if len(groups) > 1 and still:
-        shown = ", ".join(still[:8]) + (f" and {len(still) - 8} more" if len(still) > 8 else "")
-        return _Budget(
-            VARIED_GENERATOR_STEPS,
-            f"a varied folder: {len(still)} of its {len(groups)} contents stay in place (one-off actions: "
-            f"{shown}), so twice the batches of a walking folder",
-        )
-    if len(groups) > 1:
-        return _Budget(GENERATOR_STEPS, f"all {len(groups)} contents travel (locomotion)")
-    return _Budget(GENERATOR_STEPS, "one content")
 
 
 def _suggest(found: _Found, fps: float | None) -> _Suggested:
@@ -302,7 +259,7 @@ def _report(
     found: _Found,
     suggested: _Suggested,
     swaps: laterality.MirrorLabels | None,
-    budget: _Budget,
+    budget: Budget,
 ) -> list[str]:
     """The report's lines: the skeleton profile, notes, frame rates, lengths, labels, mirrored labels,
     splits, suggestion."""
@@ -557,7 +514,7 @@ model:
 
 
 def _generator_config(
-    name: str, folder: Path, summary: str, data: dict, content: str, budget: _Budget, validate: bool = True
+    name: str, folder: Path, summary: str, data: dict, content: str, budget: Budget, validate: bool = True
 ) -> str:
     directory = f"checkpoints/{name}"
     trainer = _trainer(directory, budget.steps, GENERATOR_VALIDATE, "00:04:00:00")
