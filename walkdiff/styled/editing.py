@@ -335,8 +335,9 @@ def finish(
 def smoothest(raws: np.ndarray, held: np.ndarray, skeleton: Skeleton, fps: float) -> int:
     """Which of several raw fills (B, F, D) of one gap moves with the least acceleration (the squared
     second differences of its joints' positions, seams smoothed as `finish` smooths them). Every fill
-    meets both ends, but one whose gait is out of step with B has to hurry or brake to meet it; on held-out
-    Xia gaps of 45 frames the smoothest of 4 was also the nearest to the real frames (docs/editing.md)."""
+    meets both ends, but one whose gait is out of step with B has to hurry or brake to meet it. On held-out
+    Xia gaps of 45 frames this measure ranked eight fills much as their distance to the real frames did
+    (docs/editing.md: what four bought in the bench)."""
     costs = []
     for raw in raws:
         positions = motion_world_positions(decode(smooth_seams(raw, held), skeleton, 1.0 / fps))
