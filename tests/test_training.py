@@ -591,3 +591,34 @@ def test_the_foot_velocity_loss_costs_feet_moving_unlike_real_ones_on_every_fram
     assert moved["foot_velocity"].item() == pytest.approx(abar, rel=1e-3)
     moved["foot_velocity"].backward()
     assert x0_hat.grad[..., model.layout.root_height].abs().sum() > 0
+
+
+def test_adaln_conditioning_starts_blind_to_the_labels_then_learns_them_and_reloads(tiny_root, tmp_path):
+    L.seed_everything(0)
+    dm = datamodule(tiny_root)
+    model = StyledMotionDiffusion(dm.spec, **{**TINY, "conditioning": "adaln"})
+    net = model.denoiser
+    assert not hasattr(net, "encoder") and len(net.layers) == TINY.get("layers", 4)
+    x, t = torch.randn(2, 24, dm.spec.feature_dim), torch.tensor([50, 50])
+    style, content = model.label_ids(["angry", "old"], "style"), model.label_ids(["walk", "walk"], "content")
+    # adaLN-Zero: every modulation starts at zero, so each layer starts as the identity whatever the labels
+    same = net(x[:1].expand(2, -1, -1), t, style, content)
+    torch.testing.assert_close(same[0], same[1])
+    trainer = L.Trainer(
+        accelerator="cpu", max_epochs=4, logger=False, enable_progress_bar=False, enable_model_summary=False,
+        default_root_dir=tmp_path,
+    )  # fmt: skip
+    trainer.fit(model, dm)
+    after = net(x[:1].expand(2, -1, -1), t, style, content)
+    assert not torch.allclose(after[0], after[1])  # the style now sets the layers' statistics
+    path = tmp_path / "model.ckpt"
+    trainer.save_checkpoint(path)
+    loaded = StyledMotionDiffusion.load_from_checkpoint(path, map_location="cpu")
+    assert loaded.hparams.conditioning == "adaln"
+    loaded.eval(), model.eval()  # no dropout in the comparison
+    torch.testing.assert_close(loaded.denoiser(x, t, style, content), net(x, t, style, content))
+
+
+def test_an_unknown_conditioning_is_named_with_the_choices(tiny_root):
+    with pytest.raises(WalkdiffError, match=r"model.conditioning: expected one of prefix, adaln, got 'film'"):
+        StyledMotionDiffusion(datamodule(tiny_root).spec, **{**TINY, "conditioning": "film"})

@@ -46,11 +46,44 @@ class LabelEmbedding(nn.Module):
         return torch.where(drop, torch.full_like(labels, self.null_id), labels)
 
 
+# model.conditioning: how step, content and style enter the transformer (MotionDenoiser).
+CONDITIONING = ("prefix", "adaln")
+
+
+class ModulatedLayer(nn.Module):
+    """A pre-norm transformer layer whose two norms are shifted and scaled, and whose two branches gated,
+    by the conditioning (adaLN-Zero, Peebles & Xie 2023, DiT). The modulation starts at zero, so each layer
+    starts as the identity, and the condition then sets every layer's statistics instead of entering once,
+    at the input, where the layers above can wash it out."""
+
+    def __init__(self, d_model: int, heads: int, ff: int, dropout: float):
+        super().__init__()
+        self.attention_norm = nn.LayerNorm(d_model, elementwise_affine=False)
+        self.attention = nn.MultiheadAttention(d_model, heads, dropout=dropout, batch_first=True)
+        self.feedforward_norm = nn.LayerNorm(d_model, elementwise_affine=False)
+        self.feedforward = nn.Sequential(
+            nn.Linear(d_model, ff), nn.GELU(), nn.Dropout(dropout), nn.Linear(ff, d_model)
+        )
+        self.dropout = nn.Dropout(dropout)
+        self.modulation = nn.Sequential(nn.SiLU(), nn.Linear(d_model, 6 * d_model))
+        nn.init.zeros_(self.modulation[1].weight)
+        nn.init.zeros_(self.modulation[1].bias)
+
+    def forward(self, h: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """h (B, F, d_model), cond (B, 1, d_model)."""
+        shift_a, scale_a, gate_a, shift_f, scale_f, gate_f = self.modulation(cond).chunk(6, dim=-1)
+        a = self.attention_norm(h) * (1 + scale_a) + shift_a
+        h = h + gate_a * self.dropout(self.attention(a, a, a, need_weights=False)[0])
+        f = self.feedforward_norm(h) * (1 + scale_f) + shift_f
+        return h + gate_f * self.dropout(self.feedforward(f))
+
+
 class MotionDenoiser(nn.Module):
     """Predicts the diffusion target (eps, x0 or v) for a noisy window x_t of shape (B, F, D).
 
-    The conditioning (step + content + style) is both a prefix token that every frame attends to
-    and a bias added to every frame, which makes the style signal hard to ignore.
+    The conditioning (step + content + style) enters in one of two ways (`conditioning`): `prefix`, a
+    token that every frame attends to and a bias added to every frame at the input; or `adaln`, every
+    layer's norms shifted and scaled and its branches gated by it (`ModulatedLayer`).
 
     A distilled student (walkdiff/distill.py) also takes `jump`, how many trained steps the sampler's
     step spans (B,): a jump above 1 adds its embedding to the conditioning, so one network gives both
@@ -70,9 +103,10 @@ class MotionDenoiser(nn.Module):
         dropout: float = 0.1,
         jump_conditioning: bool = False,
         code_dim: int = 0,
+        conditioning: str = "prefix",
     ):
         super().__init__()
-        self.d_model = d_model
+        self.d_model, self.conditioning = d_model, conditioning
         self.input = nn.Linear(feature_dim, d_model)
         self.step_mlp = nn.Sequential(nn.Linear(d_model, d_model), nn.SiLU(), nn.Linear(d_model, d_model))
         # With code_dim > 0 style comes as codes of example motion (models/style_encoder.py), labels too.
@@ -81,11 +115,20 @@ class MotionDenoiser(nn.Module):
         )
         self.style_encoder = StyleEncoder(feature_dim, code_dim) if code_dim else None
         self.content = LabelEmbedding(num_contents, d_model)
-        layer = nn.TransformerEncoderLayer(
-            d_model, heads, ff_mult * d_model, dropout, activation="gelu", batch_first=True, norm_first=True
-        )
-        self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
-        self.norm = nn.LayerNorm(d_model)
+        if conditioning == "adaln":
+            self.layers = nn.ModuleList(
+                ModulatedLayer(d_model, heads, ff_mult * d_model, dropout) for _ in range(layers)
+            )
+            self.norm = nn.LayerNorm(d_model, elementwise_affine=False)
+            self.final_modulation = nn.Sequential(nn.SiLU(), nn.Linear(d_model, 2 * d_model))
+            nn.init.zeros_(self.final_modulation[1].weight)
+            nn.init.zeros_(self.final_modulation[1].bias)
+        else:
+            layer = nn.TransformerEncoderLayer(
+                d_model, heads, ff_mult * d_model, dropout, activation="gelu", batch_first=True, norm_first=True
+            )
+            self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+            self.norm = nn.LayerNorm(d_model)
         self.output = nn.Linear(d_model, feature_dim)
         self.jump_mlp = None
         if jump_conditioning:
@@ -119,6 +162,12 @@ class MotionDenoiser(nn.Module):
         frames = x_t.shape[1]
         cond = self.condition(t, style, content, jump)[:, None]
         pos = sinusoidal(torch.arange(frames, device=x_t.device), self.d_model)
+        if self.conditioning == "adaln":
+            h = self.input(x_t) + pos
+            for layer in self.layers:
+                h = layer(h, cond)
+            shift, scale = self.final_modulation(cond).chunk(2, dim=-1)
+            return self.output(self.norm(h) * (1 + scale) + shift)
         h = self.input(x_t) + pos + cond
         h = self.encoder(torch.cat([cond, h], dim=1))[:, 1:]
         return self.output(self.norm(h))

@@ -63,7 +63,7 @@ from walkdiff.diffusion import (
 )
 from walkdiff.models.base import MotionModule
 from walkdiff.models.body_terms import at_least_float32
-from walkdiff.models.denoiser import MotionDenoiser
+from walkdiff.models.denoiser import CONDITIONING, MotionDenoiser
 from walkdiff.models.discriminator import MotionDiscriminator
 from walkdiff.models.style_encoder import reference_windows
 from walkdiff.models.style_statistics import StyleStatistics
@@ -90,6 +90,7 @@ class StyledMotionDiffusion(MotionModule):
         layers: int = 4,
         heads: int = 4,
         dropout: float = 0.1,
+        conditioning: str = "prefix",  # how step, content and style enter the denoiser (models/denoiser.py)
         timesteps: int = 100,
         schedule: str = "linear",
         beta_start: float = 1e-3,
@@ -126,13 +127,17 @@ class StyledMotionDiffusion(MotionModule):
             raise WalkdiffError(
                 f"model.min_snr_gamma: expected a number > 0 (5 is usual) or null, got {min_snr_gamma}"
             )
+        if conditioning not in CONDITIONING:
+            raise WalkdiffError(
+                f"model.conditioning: expected one of {', '.join(CONDITIONING)}, got {conditioning!r}"
+            )
 
         self.diffusion = GaussianDiffusion(timesteps, schedule, beta_start, beta_end, prediction)
         num_styles, num_contents = len(spec["styles"]), len(spec["contents"])
 
         def denoiser(dropout: float, jump_conditioning: bool) -> MotionDenoiser:
             return MotionDenoiser(spec["feature_dim"], num_styles, num_contents, d_model, layers, heads, 4,
-                                  dropout, jump_conditioning, style_code_dim)  # fmt: skip
+                                  dropout, jump_conditioning, style_code_dim, conditioning)  # fmt: skip
 
         self.denoiser = denoiser(dropout, jump_conditioning=bool(self.distilled_steps))
         self.discriminator = (
