@@ -5,7 +5,8 @@ bar in about half its 1,800 batches on Xia walking, and a larger folder needs no
 (docs/training.md, "Time to the quality bar"). A varied folder, whose contents include one-off actions
 (contents whose root stays in place), gets twice the batches: on the disguised actions folder 3,600 took
 skating from 3.9x real to 1.9x and style from 0.60 to 0.77 of real (docs/training.md, "The quality
-suite").
+suite"). Its labels also enter every layer of the denoiser (`model.conditioning: adaln`): on the same
+folder FMD 3.80x the floor, not 4.43x, and style 0.84 of real, not 0.77.
 """
 
 from __future__ import annotations
@@ -30,10 +31,11 @@ TRAVEL_SPEED, TRAVEL_STEP_SECONDS = 0.25, 0.25
 
 @dataclass(frozen=True)
 class Budget:
-    """The generator's batches and why."""
+    """The generator's batches and why; `varied`: the folder holds one-off actions beside locomotion."""
 
     steps: int
     why: str
+    varied: bool = False
 
 
 def root_travel(profile: SkeletonProfile, motion: Motion) -> float:
@@ -58,6 +60,7 @@ def generator_budget(groups: tuple[str, ...], contents: list[int], travel: np.nd
             VARIED_GENERATOR_STEPS,
             f"a varied folder: {len(still)} of its {len(groups)} contents stay in place (one-off actions: "
             f"{shown}), so twice the batches of a walking folder",
+            varied=True,
         )
     if len(groups) > 1:
         return Budget(GENERATOR_STEPS, f"all {len(groups)} contents travel (locomotion)")
