@@ -37,6 +37,12 @@ class Budget:
     why: str
     varied: bool = False
 
+    @property
+    def conditioning(self) -> str:
+        """The denoiser's `model.conditioning` as written (measured on a varied folder only: there adaLN
+        took FMD from 4.43x the floor to 3.80x, docs/training.md)."""
+        return "adaln   # the labels in every layer (a varied folder)" if self.varied else "prefix"
+
 
 def root_travel(profile: SkeletonProfile, motion: Motion) -> float:
     """Body heights per second the clip's root moves along the ground (canonical axes: y up)."""

@@ -540,11 +540,6 @@ def _generator_config(
         every_n_steps: {2 * GENERATOR_VALIDATE}
         content: {_yaml(content)}
 """
-    conditioning = (  # measured on a varied folder only (walkdiff bench ablate: docs/training.md)
-        "adaln   # labels in every layer: FMD 3.80x the floor, not 4.43x; style 0.84 of real, not 0.77"
-        if budget.varied
-        else "prefix"
-    )
     if validate:
         first = f"""\
 # Train the evaluator first (walkdiff fit --config evaluator_{name}.yaml, beside this file): the
@@ -583,7 +578,7 @@ model:
     beta_start: 1.0e-3
     beta_end: 0.2
     prediction: x0
-    conditioning: {conditioning}
+    conditioning: {budget.conditioning}
     min_snr_gamma: 5.0   # FMD 1.65x the floor, not 2.20x (walkdiff bench ablate: docs/training.md)
     lambda_contact: 1.0
     lambda_root: 0.023

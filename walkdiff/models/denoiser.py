@@ -125,7 +125,13 @@ class MotionDenoiser(nn.Module):
             nn.init.zeros_(self.final_modulation[1].bias)
         else:
             layer = nn.TransformerEncoderLayer(
-                d_model, heads, ff_mult * d_model, dropout, activation="gelu", batch_first=True, norm_first=True
+                d_model,
+                heads,
+                ff_mult * d_model,
+                dropout,
+                activation="gelu",
+                batch_first=True,
+                norm_first=True,
             )
             self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
             self.norm = nn.LayerNorm(d_model)
