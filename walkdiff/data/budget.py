@@ -39,8 +39,8 @@ class Budget:
 
     @property
     def conditioning(self) -> str:
-        """The denoiser's `model.conditioning` as written (measured on a varied folder only: there adaLN
-        took FMD from 4.43x the floor to 3.80x, docs/training.md)."""
+        """The denoiser's `model.conditioning` as written: adaLN took a varied folder's FMD from 4.43x the
+        floor to 3.80x, but a walking folder's from 1.43x to 1.85x (docs/training.md)."""
         return "adaln   # the labels in every layer (a varied folder)" if self.varied else "prefix"
 
 
