@@ -41,7 +41,7 @@ class Budget:
     def conditioning(self) -> str:
         """The denoiser's `model.conditioning` as written: adaLN took a varied folder's FMD from 4.43x the
         floor to 3.80x, but a walking folder's from 1.43x to 1.85x (docs/training.md)."""
-        return "adaln   # the labels in every layer (a varied folder)" if self.varied else "prefix"
+        return "adaln" if self.varied else "prefix"
 
 
 def root_travel(profile: SkeletonProfile, motion: Motion) -> float:

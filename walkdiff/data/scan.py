@@ -578,7 +578,7 @@ model:
     beta_start: 1.0e-3
     beta_end: 0.2
     prediction: x0
-    conditioning: {budget.conditioning}
+    conditioning: {budget.conditioning}   # adaln: a varied folder's labels in every layer (docs/training.md)
     min_snr_gamma: 5.0   # FMD 1.65x the floor, not 2.20x (walkdiff bench ablate: docs/training.md)
     lambda_contact: 1.0
     lambda_root: 0.023

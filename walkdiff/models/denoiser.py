@@ -50,6 +50,14 @@ class LabelEmbedding(nn.Module):
 CONDITIONING = ("prefix", "adaln")
 
 
+def zero_modulation(d_model: int, parts: int) -> nn.Sequential:
+    """The conditioning to `parts` vectors of d_model (shifts, scales, gates), starting at zero."""
+    modulation = nn.Sequential(nn.SiLU(), nn.Linear(d_model, parts * d_model))
+    nn.init.zeros_(modulation[1].weight)
+    nn.init.zeros_(modulation[1].bias)
+    return modulation
+
+
 class ModulatedLayer(nn.Module):
     """A pre-norm transformer layer whose two norms are shifted and scaled, and whose two branches gated,
     by the conditioning (adaLN-Zero, Peebles & Xie 2023, DiT). The modulation starts at zero, so each layer
@@ -65,9 +73,7 @@ class ModulatedLayer(nn.Module):
             nn.Linear(d_model, ff), nn.GELU(), nn.Dropout(dropout), nn.Linear(ff, d_model)
         )
         self.dropout = nn.Dropout(dropout)
-        self.modulation = nn.Sequential(nn.SiLU(), nn.Linear(d_model, 6 * d_model))
-        nn.init.zeros_(self.modulation[1].weight)
-        nn.init.zeros_(self.modulation[1].bias)
+        self.modulation = zero_modulation(d_model, 6)
 
     def forward(self, h: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         """h (B, F, d_model), cond (B, 1, d_model)."""
@@ -120,9 +126,7 @@ class MotionDenoiser(nn.Module):
                 ModulatedLayer(d_model, heads, ff_mult * d_model, dropout) for _ in range(layers)
             )
             self.norm = nn.LayerNorm(d_model, elementwise_affine=False)
-            self.final_modulation = nn.Sequential(nn.SiLU(), nn.Linear(d_model, 2 * d_model))
-            nn.init.zeros_(self.final_modulation[1].weight)
-            nn.init.zeros_(self.final_modulation[1].bias)
+            self.final_modulation = zero_modulation(d_model, 2)
         else:
             layer = nn.TransformerEncoderLayer(
                 d_model,
