@@ -16,7 +16,7 @@ from test_evaluator import make_xia_subset, tiny_datamodule, tiny_trainer
 from walkdiff.callbacks.metrics import MotionMetrics
 from walkdiff.cli.main import main
 from walkdiff.evaluation.evaluate import METRICS
-from walkdiff.evaluation.scorer import WindowSet, balanced_labels, halves_fmd, window_set
+from walkdiff.evaluation.scorer import WindowSet, drawn_labels, halves_fmd, window_set
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
@@ -46,11 +46,16 @@ def tiny_generator(setup, tmp_path, timesteps: int = 10) -> Path:
     return ckpt
 
 
-def test_balanced_labels_cover_every_pair():
-    style, content = balanced_labels(48, 8, [0, 3])
-    assert torch.bincount(style).tolist() == [6] * 8
-    pairs = torch.stack([style, content], dim=1).unique(dim=0)
-    assert len(pairs) == 16 and set(content.tolist()) == {0, 3}
+def test_generated_labels_are_drawn_as_often_as_the_reference_holds_them():
+    # A reference of 90% content 0 (style 1) and 10% content 3 (style 2): generated windows are asked for
+    # that mixture, pairs and all, not for every label alike.
+    style = torch.tensor([1] * 90 + [2] * 10)
+    reference = WindowSet(None, style, torch.where(style == 1, 0, 3), torch.arange(100))
+    style, content = drawn_labels(reference, 2000, torch.Generator().manual_seed(0))
+    assert set(zip(style.tolist(), content.tolist(), strict=True)) == {(1, 0), (2, 3)}
+    assert (content == 3).float().mean() == pytest.approx(0.1, abs=0.02)
+    again = drawn_labels(reference, 2000, torch.Generator().manual_seed(0))
+    assert torch.equal(again[0], style) and torch.equal(again[1], content)
 
 
 def test_window_set_never_crosses_clips():
@@ -136,6 +141,18 @@ def test_evaluate_scores_a_generator_beside_the_real_rows(setup, tmp_path, capsy
     assert set(walk) == {"generated", "real test", "real train vs test"}
     assert {"turn_deg_s", "multimodality"} <= set(walk["generated"]) and walk["generated"]["windows"] == 16
     assert "| walk | generated | 16 |" in (out / "report.md").read_text()
+    # --fix-feet: the same windows once more with their feet pinned (as `generate --fix-feet`), beside.
+    fixed = tmp_path / "fixed"
+    args_fixed = ["evaluate", "--ckpt", str(ckpt), "--evaluator", str(setup["ckpt"]), "--out", str(fixed)]
+    assert (
+        main(
+            args_fixed + ["--num", "16", "--repeats", "1", "--sampler", "ddim", "--steps", "2", "--fix-feet"]
+        )
+        == 0
+    )
+    report = json.loads((fixed / "report.json").read_text())
+    assert list(report["rows"])[:3] == ["generated", "generated, not grounded", "generated, feet fixed"]
+    assert report["settings"]["fix_feet"] and "generated, feet fixed" in report["per_content"]["walk"]
     assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(out)]) == 1
     assert "report.json" in capsys.readouterr().err  # an earlier report is not replaced unasked
     assert main(["evaluate", "--ckpt", str(ckpt), "--out", str(tmp_path / "other")]) == 1

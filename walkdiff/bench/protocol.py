@@ -1,9 +1,9 @@
 """`walkdiff bench protocol`: walkdiff's rows of the evaluation protocol, scored as `walkdiff score` scores
 any method, beside the baselines every method is compared with.
 
-- Sampling: `samples` windows balanced over styles from the generator (DDPM over all steps and DDIM-10)
-  and from a distilled student (DDIM at each step count it was made for, when given), each window a
-  clip; the real training split as the floor a generator can reach.
+- Sampling: `samples` windows with the labels of real test windows from the generator (DDPM over all
+  steps and DDIM-10) and from a distilled student (DDIM at each step count it was made for, when
+  given), each window a clip; the real training split as the floor a generator can reach.
 - Transfer: every real test clip of the protocol's contents restyled to every other style, at each
   strength, with and without `--keep-trajectory`; the unchanged sources and real clips of the target
   styles scored the same way. A setting is a style transfer when it beats both baselines
@@ -24,7 +24,7 @@ from walkdiff.common.files import output_folder, write_json, write_text
 from walkdiff.common.progress import progress
 from walkdiff.evaluation.clips import Clip, ClipScorer
 from walkdiff.evaluation.score import METRICS, format_summary
-from walkdiff.evaluation.scorer import generate_windows
+from walkdiff.evaluation.scorer import drawn_labels, generate_windows
 from walkdiff.evaluation.transfer import (
     MIN_SOURCES_PER_STYLE,
     real_targets,
@@ -49,9 +49,9 @@ def _clips_of_raw(scorer: ClipScorer, raw: torch.Tensor, styles: list[str], cont
 
 def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, bootstrap: int, **sampling):
     contents = list(model.spec["contents"])
-    content_ids = [contents.index(n) for n in scorer.data.selection.names]
+    labels = drawn_labels(scorer.reference_windows, samples, torch.Generator().manual_seed(seed))
     generator = torch.Generator(device=model.device).manual_seed(seed)
-    windows = generate_windows(model, samples, content_ids, generator, batch, **sampling)
+    windows = generate_windows(model, labels, generator, batch, **sampling)
     styles = [model.spec["styles"][int(s)] for s in windows.style]
     clips = _clips_of_raw(scorer, windows.raw, styles, None, "sample")
     for clip, c in zip(clips, windows.content, strict=True):

@@ -29,7 +29,6 @@ class QualityBench:
         self.scorer = MotionScorer(load_evaluator(evaluator), model.skeleton, spec["fps"])
         self.reference = self.scorer.embed(window_set(self.datamodule.split_features("test"), spec["window"]))
         self.scorer.set_reference(self.reference)
-        self.content_ids = [list(spec["contents"]).index(name) for name in self.datamodule.selection.names]
         self.num, self.seed, self.seeds, self.ground = num, seed, seeds, ground
 
     def scored(self, windows) -> dict:
@@ -38,13 +37,14 @@ class QualityBench:
 
     def row(self, model, sampler: str, steps: int, eta: float):
         """(the setting's mean scores over the seeds, the first seed's windows and their scores)."""
-        from walkdiff.evaluation.scorer import generate_windows
+        from walkdiff.evaluation.scorer import drawn_labels, generate_windows
 
         runs, elapsed, first = [], 0.0, None
         for s in range(self.seed, self.seed + self.seeds):
             start = time.perf_counter()
+            labels = drawn_labels(self.reference, self.num, torch.Generator().manual_seed(s))
             windows = generate_windows(
-                model, self.num, self.content_ids, torch.Generator().manual_seed(s), self.num, self.ground,
+                model, labels, torch.Generator().manual_seed(s), self.num, self.ground,
                 sampler=sampler, steps=steps, eta=eta,
             )  # fmt: skip
             elapsed += time.perf_counter() - start
@@ -66,7 +66,9 @@ def with_feet_fixed(model, windows):
 
 
 def with_ratios(row: dict, reference: dict) -> dict:
+    """The row with its FMD and style accuracy over the reference row's (None where that is 0: a model
+    that never gives the asked style has no ratio to it)."""
     return row | {
-        "fmd_over_ddpm": round(row["fmd"] / reference["fmd"], 3),
-        "style_acc_over_ddpm": round(row["style_acc"] / reference["style_acc"], 3),
+        f"{key}_over_ddpm": round(row[key] / reference[key], 3) if reference[key] else None
+        for key in ("fmd", "style_acc")
     }

@@ -11,6 +11,7 @@ import torch
 from walkdiff.bench.measure import interleaved_medians, machine, median_seconds, report
 from walkdiff.bench.quality import QualityBench, with_feet_fixed, with_ratios
 from walkdiff.common.files import write_atomic
+from walkdiff.evaluation.scorer import drawn_labels
 
 
 def _seam_speeds(model, x: torch.Tensor, overlap: int, blend: int) -> dict:
@@ -126,10 +127,11 @@ def bench_sample(
     """Quality against steps, speed, foot clean-up and transfer of a StyledMotionDiffusion checkpoint.
 
     Writes OUT/sample.json and OUT/sample.png. Quality: FMD and recognition against the real test
-    windows (evaluation.py's scorer) of `num` windows balanced over styles, DDPM over all T steps, DDIM
-    over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over `seeds` seeds
-    (the same seeds for every sampler), with each one's ratio to DDPM. A distilled student's DDIM step
-    counts (`walkdiff distill`) join the DDIM rows, the speed (frames/s at each) and the seams.
+    windows (evaluation.py's scorer) of `num` windows with the labels of real ones, DDPM over all T
+    steps, DDIM over each of `ddim_steps` and DPM-Solver++(2M) over each of `dpm_steps`, averaged over
+    `seeds` seeds (the same seeds for every sampler), with each one's ratio to DDPM. A distilled
+    student's DDIM step counts (`walkdiff distill`) join the DDIM rows, the speed (frames/s at each)
+    and the seams.
     """
     from walkdiff.styled.generation import load_generator
 
@@ -144,8 +146,7 @@ def bench_sample(
     fix_feet = {"before": ddpm_scores, "after": bench.scored(with_feet_fixed(model, ddpm))}
 
     torch.manual_seed(seed)
-    style = torch.arange(batch_size) % len(model.spec["styles"])
-    content = torch.full((batch_size,), bench.content_ids[0])
+    style, content = drawn_labels(reference, batch_size, torch.Generator().manual_seed(seed))
     result = {
         "benchmark": "sample",
         "ckpt": ckpt,

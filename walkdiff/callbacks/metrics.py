@@ -22,6 +22,7 @@ from walkdiff.evaluation.scorer import (
     EVALUATORS,
     MotionScorer,
     WindowSet,
+    drawn_labels,
     generate_windows,
     load_evaluator,
     window_set,
@@ -39,7 +40,8 @@ class MotionMetrics(L.Callback):
     Args:
         evaluator_ckpt: checkpoint of a trained `MotionEvaluator`.
         every_n_steps: measure after the first validation past every N batches trained.
-        num_samples: generated windows, balanced over styles (and over the data's content selection).
+        num_samples: generated windows, each asked for the labels of a reference window drawn at random
+            (every label as often as the reference split holds it).
         sampler, steps, guidance: passed to the model's `generate`.
         batch_size: windows generated at once.
         seed: seed of the generation noise and of the metrics' random pairs.
@@ -115,8 +117,6 @@ class MotionMetrics(L.Callback):
             window_set(datamodule.split_features(self.split), pl_module.spec["window"])
         )
         self.scorer.set_reference(self.real)
-        contents = list(pl_module.spec["contents"])
-        self.content_ids = [contents.index(name) for name in datamodule.selection.names]
 
     @torch.no_grad()
     def measure(
@@ -124,10 +124,10 @@ class MotionMetrics(L.Callback):
     ) -> dict[str, float]:
         self._prepare(trainer, pl_module)
         generator = torch.Generator(device=pl_module.device).manual_seed(self.seed)
+        labels = drawn_labels(self.real, self.num_samples, torch.Generator().manual_seed(self.seed))
         windows = generate_windows(
             pl_module,
-            self.num_samples,
-            self.content_ids,
+            labels,
             generator,
             self.batch_size,
             sampler=self.sampler,

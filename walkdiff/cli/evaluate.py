@@ -82,6 +82,11 @@ def add_parsers(sub) -> None:
         "--no-ground", dest="ground", action="store_false",
         help="score the windows as sampled, without grounding their feet (reported beside them otherwise)",
     )  # fmt: skip
+    p.add_argument(
+        "--fix-feet", action="store_true",
+        help="also score the windows with their feet pinned during the model's contacts, as generate "
+        "--fix-feet gives them (a row beside)",
+    )  # fmt: skip
     p.add_argument("--mlflow-experiment", default=None, help="log metrics and reports into an MLflow run")
     p.add_argument("--overwrite", action="store_true", help="replace an existing report")
     p.set_defaults(run=run_evaluate)

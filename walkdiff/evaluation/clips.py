@@ -77,6 +77,7 @@ class ClipScorer:
             "test", {"stride": 1}, lambda: self.scorer.embed(window_set(test("test"), self.window))
         )
         self.scorer.set_reference(reference)
+        self.reference_windows = reference  # whose labels generated windows are asked for
         self.reference = Reference.of(reference.features)
         spread = Diversity(num_pairs=1000, seed=0)
         spread.update(reference.features)

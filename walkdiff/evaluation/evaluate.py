@@ -4,7 +4,8 @@ Every repeat draws `num` windows and scores them with a trained `MotionEvaluator
 features of the real reference split, style and content recognition accuracy, diversity, multimodality,
 foot skating and jitter. Three rows are computed the same way, each as mean ± 1.96·σ/√repeats:
 
-- generated: `num` clips from the generator, balanced over styles (and over its content selection);
+- generated: `num` clips from the generator, asked for the labels of `num` reference windows drawn at
+  random (so every row holds each label as often as the reference split does);
 - real <split>: `num` windows drawn with replacement from the reference split itself;
 - real train vs <split>: `num` windows drawn from the training split, the floor a generator can reach.
 
@@ -35,6 +36,8 @@ from walkdiff.data.datasets import protocol_contents
 from walkdiff.evaluation.plan import Plan, protocol
 from walkdiff.evaluation.scorer import (
     MotionScorer,
+    WindowSet,
+    drawn_labels,
     generate_windows,
     halves_fmd,
     load_evaluator,
@@ -42,6 +45,7 @@ from walkdiff.evaluation.scorer import (
 )
 from walkdiff.metrics import format_summary, summarize, summarize_runs
 from walkdiff.metrics.protocol import NON_NEGATIVE
+from walkdiff.motion.footfix import fix_feet_features
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +74,7 @@ def evaluate(
     steps: int | None = None,
     guidance: float = 1.0,
     ground: bool = True,
+    fix_feet: bool = False,
     split: str = "test",
     contents: str | None = None,
     root: str | None = None,
@@ -126,10 +131,10 @@ def evaluate(
 
     rows = _Rows(scorer, seed)
     if model is not None:
-        content_ids = [list(model.spec["contents"]).index(name) for name in dm.selection.names]
         sampling = dict(sampler=sampler, steps=steps, guidance=guidance)
+        finishes = _finishes(model, ground, fix_feet)
         _generated_rows(
-            rows, model, content_ids, num, repeats, seed, batch_size, ground, sampling, plan.timed
+            rows, model, reference, num, repeats, seed, batch_size, finishes, sampling, plan.timed
         )
     draw = torch.Generator().manual_seed(seed)
     for name, pool in ((f"real {split}", reference), (f"real train vs {split}", train)):
@@ -152,6 +157,7 @@ def evaluate(
             "steps": None if real_only else steps,
             "guidance": None if real_only else guidance,
             "grounded": None if real_only else ground,
+            "fix_feet": None if real_only else fix_feet,
             "split": split,
             "stride": stride,
             "device": str(device),
@@ -178,7 +184,8 @@ def evaluate(
 
 def _check_num(num: int, spec: dict, contents: list[str]) -> None:
     """Before anything is generated: multimodality pairs windows of one style (of one content without
-    styles), so --num must give every one of them 2 windows; generated windows cycle over them."""
+    styles), so --num must be able to give every one of them 2 windows (a label rarer than that in the
+    reference split may still have fewer, and is then left out of the mean, in every row alike)."""
     styled = len(spec["styles"]) > 1
     kind, classes = ("style", len(spec["styles"])) if styled else ("content group", len(contents))
     if num < 2 * classes:
@@ -251,25 +258,44 @@ class _Rows:
 
 
 def _generated_rows(
-    rows: _Rows, model, content_ids: list[int], num: int, repeats: int, seed: int, batch_size: int,
-    ground: bool, sampling: dict, timed=None,
+    rows: _Rows, model, reference: WindowSet, num: int, repeats: int, seed: int, batch_size: int,
+    finishes: dict[str, tuple], sampling: dict, timed=None,
 ) -> None:  # fmt: skip
-    """Scores of `repeats` sets of `num` generated windows: grounded (with `ground`), and the same
-    windows as generated, so that the rows differ by what grounding changes and only that. `timed`:
-    told the seconds of each batch of the first repeat."""
+    """Scores of `repeats` sets of `num` generated windows, each asked for the labels of `num` reference
+    windows drawn at random, once per row of `finishes` (row name -> (what is done to the sampled raw
+    windows, whether the row gets per-label figures)): the same windows in every row, so that rows differ
+    by what their finish changes and only that. `timed`: told the seconds of each batch of the first
+    repeat."""
     generator = torch.Generator(device=model.device).manual_seed(seed)
+    draw = torch.Generator().manual_seed(seed)
     for repeat in range(repeats):
         windows = generate_windows(
-            model, num, content_ids, generator, batch_size, grounded=False,
+            model, drawn_labels(reference, num, draw), generator, batch_size, grounded=False,
             desc=f"generating, repeat {repeat + 1} of {repeats}", timed=timed if repeat == 0 else None,
             **sampling,
         )  # fmt: skip
-        grounded = (
-            replace(windows, raw=torch.from_numpy(model.ground(windows.raw.numpy()))) if ground else windows
+        for row, (finish, labels) in finishes.items():
+            rows.add(row, replace(windows, raw=torch.from_numpy(finish(windows.raw.numpy()))), repeat, labels)
+
+
+def _finishes(model, ground: bool, fix_feet: bool) -> dict[str, tuple]:
+    """The generated rows: grounded (as `generate` gives them; with `ground`) and as sampled beside,
+    and with `fix_feet` the grounded windows with their feet pinned too (as `generate --fix-feet`)."""
+
+    def as_sampled(raw):
+        return raw
+
+    finished = model.ground if ground else as_sampled
+    out = {"generated": (finished, True)}
+    if ground:
+        out["generated, not grounded"] = (as_sampled, False)
+    if fix_feet:
+        fps = model.spec["fps"]
+        out["generated, feet fixed"] = (
+            lambda raw: fix_feet_features(finished(raw), model.profile, fps),
+            True,
         )
-        rows.add("generated", grounded, repeat)
-        if ground:
-            rows.add("generated, not grounded", windows, repeat, labels=False)
+    return out
 
 
 def format_report(report: dict) -> str:

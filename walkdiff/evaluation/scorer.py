@@ -201,16 +201,22 @@ def fmd_metric(real_features: torch.Tensor) -> FrechetMotionDistance:
     return metric
 
 
-def balanced_labels(num: int, styles: int, content_ids: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Style ids cycling over all styles, content ids cycling over `content_ids` per round of styles."""
-    i = torch.arange(num)
-    return i % styles, torch.tensor(content_ids)[(i // styles) % len(content_ids)]
+def drawn_labels(
+    reference: WindowSet, num: int, generator: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(style ids, content ids) of `num` windows of `reference` drawn at random with replacement.
+
+    Generated windows are asked for the labels real ones have, as often as the real ones have them (as
+    ACTOR and MDM condition generation on the real set's labels): FMD, multimodality and recognition then
+    compare like with like. Labels cycled evenly against a real set that is mostly one label measure the
+    mixture of labels, not the motion (docs/evaluation.md, "Which labels are generated")."""
+    index = torch.randint(len(reference), (num,), generator=generator)
+    return reference.style[index], reference.content[index]
 
 
 def generate_windows(
     model,
-    num: int,
-    content_ids: list[int],
+    labels: tuple[torch.Tensor, torch.Tensor],
     generator: torch.Generator,
     batch_size: int,
     grounded: bool = True,
@@ -218,9 +224,11 @@ def generate_windows(
     timed: Callable[[int, float], None] | None = None,
     **sampling,
 ) -> WindowSet:
-    """`num` raw windows from a generator (`generate`, `to_raw`), grounded unless told otherwise, with a
-    progress bar `desc` over batches x denoising steps; `timed(windows, seconds)` after each batch."""
-    style, content = balanced_labels(num, len(model.spec["styles"]), content_ids)
+    """One raw window from a generator (`generate`, `to_raw`) per (style id, content id) of `labels`,
+    grounded unless told otherwise, with a progress bar `desc` over batches x denoising steps;
+    `timed(windows, seconds)` after each batch."""
+    style, content = labels
+    num = len(style)
     raws = []
     with progress(desc=desc, unit="step") as bar:
         hook = step_hook(bar, math.ceil(num / batch_size))
