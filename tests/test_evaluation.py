@@ -16,7 +16,7 @@ from test_evaluator import make_xia_subset, tiny_datamodule, tiny_trainer
 from walkdiff.callbacks.metrics import MotionMetrics
 from walkdiff.cli.main import main
 from walkdiff.evaluation.evaluate import METRICS
-from walkdiff.evaluation.scorer import WindowSet, drawn_labels, halves_fmd, window_set
+from walkdiff.evaluation.scorer import WindowSet, drawn_labels, halves_fmd, matching_windows, window_set
 from walkdiff.models.evaluator import MotionEvaluator
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion
 
@@ -56,6 +56,18 @@ def test_generated_labels_are_drawn_as_often_as_the_reference_holds_them():
     assert (content == 3).float().mean() == pytest.approx(0.1, abs=0.02)
     again = drawn_labels(reference, 2000, torch.Generator().manual_seed(0))
     assert torch.equal(again[0], style) and torch.equal(again[1], content)
+
+
+def test_floor_windows_are_drawn_with_the_asked_labels_and_a_missing_pair_is_counted():
+    # A pool (say the training split) of 3 styles x 2 contents, but no window of style 2 with content 1.
+    style = torch.tensor([0, 0, 1, 1, 2, 0, 1, 0, 1, 2])
+    content = torch.tensor([0, 1, 0, 1, 0, 0, 0, 1, 1, 0])
+    pool = WindowSet(None, style, content, torch.arange(10))
+    asked = torch.tensor([0, 1, 2, 2, 1, 0]), torch.tensor([1, 0, 0, 1, 1, 0])
+    windows, unmatched = matching_windows(pool, asked, torch.Generator().manual_seed(0))
+    assert torch.equal(windows.content, asked[1])  # every window of the asked content
+    assert windows.style.tolist()[:3] == [0, 1, 2] and windows.style.tolist()[4:] == [1, 0]
+    assert unmatched == 1 and windows.style[3] != 2  # the missing pair: another style of content 1
 
 
 def test_window_set_never_crosses_clips():

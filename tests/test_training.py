@@ -408,6 +408,21 @@ def tiny_evaluator(root: Path, path: Path) -> Path:
     return path
 
 
+def test_a_label_turns_only_when_its_held_out_and_training_windows_turn_alike():
+    from walkdiff.bench.ablate import turning
+
+    def turn(mean):
+        return {"mean": mean}
+
+    assert turning(turn(58.9), turn(68.5)) and turning(turn(-44.5), turn(-63.4))  # walk-turn-left, -right
+    assert not turning(turn(-17.9), turn(5.7))  # held-out runs that curve, training runs that do not
+    assert (
+        not turning(turn(16.0), turn(-23.3))
+        and not turning(turn(9.9), turn(12.4))
+        and not turning(None, turn(50))
+    )
+
+
 def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_path, monkeypatch):
     """`walkdiff bench ablate`: a variant trained at the grid's budget and one scored otherwise from its
     model; every figure a ratio to real with its interval; a second call resumes without training; a

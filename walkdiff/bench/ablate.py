@@ -244,6 +244,16 @@ def _evaluate(out_dir: Path, name: str, trained: str, settings: dict, evaluator:
     _walkdiff(args, out_dir / name / "evaluate.log", threads)
 
 
+def turning(held_out: dict | None, train: dict | None) -> bool:
+    """A label turns when its held-out and its training windows both turn at least `TURNING_DEG_S` the
+    same way: the turn is the label's, not that of the few held-out clips that happen to curve (real
+    runs of the disguised actions folder: -17.9 deg/s held out, +5.7 in training)."""
+    if not (held_out and train):
+        return False
+    a, b = held_out["mean"], train["mean"]
+    return min(abs(a), abs(b)) >= TURNING_DEG_S and (a > 0) == (b > 0)
+
+
 def figures(train: dict, evaluation: dict) -> dict:
     """One variant's row: each bar figure as a ratio to real with its interval, the turning labels'
     turn rates beside real, the cost, and the training curve of the metrics callback."""
@@ -274,10 +284,12 @@ def figures(train: dict, evaluation: dict) -> dict:
         if f"{kind}_acc" in generated:
             row[kind] = ratio(generated[f"{kind}_acc"], real[f"{kind}_acc"]["mean"])
     turns = {}
+    split = evaluation["settings"]["split"]
     for label, label_rows in evaluation.get("per_content", {}).items():
-        real_turn = label_rows.get(f"real {evaluation['settings']['split']}", {}).get("turn_deg_s")
+        real_turn = label_rows.get(f"real {split}", {}).get("turn_deg_s")
+        floor_turn = label_rows.get(f"real train vs {split}", {}).get("turn_deg_s")
         made = label_rows.get("generated", {}).get("turn_deg_s")
-        if real_turn and made and abs(real_turn["mean"]) >= TURNING_DEG_S:
+        if made and turning(real_turn, floor_turn):
             turns[label] = {
                 "generated_deg_s": _interval(made),
                 "real_deg_s": _interval(real_turn),
@@ -349,7 +361,10 @@ def collect(out_dir: Path, config: str, grid: dict, grid_file) -> dict:
         "budget": grid.get("budget", 1800),
         "evaluate": EVALUATE_DEFAULTS | (grid.get("evaluate") or {}),
         "bar": {name: f"{kind} {bound} x real" for name, (kind, bound) in BAR.items()}
-        | {"turns": f"within {TURN_TOLERANCE:.0%} of real, per label turning >= {TURNING_DEG_S:g} deg/s"},
+        | {
+            "turns": f"within {TURN_TOLERANCE:.0%} of real, per label whose held-out and training "
+            f"windows both turn >= {TURNING_DEG_S:g} deg/s one way"
+        },
         "variants": table,
         "written": time.strftime("%Y-%m-%d %H:%M:%S"),
         "machine": machine(),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import lightning as L
@@ -25,6 +26,7 @@ from walkdiff.evaluation.scorer import (
     drawn_labels,
     generate_windows,
     load_evaluator,
+    matching_windows,
     window_set,
 )
 
@@ -124,7 +126,7 @@ class MotionMetrics(L.Callback):
     ) -> dict[str, float]:
         self._prepare(trainer, pl_module)
         generator = torch.Generator(device=pl_module.device).manual_seed(self.seed)
-        labels = drawn_labels(self.real, self.num_samples, torch.Generator().manual_seed(self.seed))
+        labels = drawn_labels(self.real, self.num_samples, self._label_draw())
         windows = generate_windows(
             pl_module,
             labels,
@@ -151,22 +153,34 @@ class MotionMetrics(L.Callback):
         return values
 
     def held_out_reference(self, split: str = "test", repeats: int = 5) -> list[dict[str, float]]:
-        """The scores of real windows of a held-out split, `num_samples` drawn at random per repeat and
-        scored exactly as generated ones are (against this callback's reference windows): what a
-        generator's numbers here are to be compared with (FMD: the train-vs-held-out floor)."""
+        """The scores of real windows of a held-out split, `num_samples` per repeat with the labels a
+        measurement asks the generator for, scored exactly as generated ones are (against this
+        callback's reference windows): what a generator's numbers here are to be compared with (FMD: the
+        train-vs-held-out floor)."""
         if self.scorer is None:
             raise WalkdiffError("held_out_reference needs a measurement first (the evaluator is loaded then)")
         held_out = self.scorer.embed(
             window_set(self.datamodule.split_features(split), self.real.raw.shape[1])
         )
-        draw = torch.Generator().manual_seed(self.seed)
-        return [
-            self.scorer.score(
-                held_out.take(torch.randint(len(held_out), (self.num_samples,), generator=draw)),
-                seed=self.seed + repeat,
+        # The labels a measurement asks the generator for (the first repeat's exactly), each window drawn
+        # among the held-out windows of its label.
+        label_draw, draw = self._label_draw(), torch.Generator().manual_seed(self.seed + 1)
+        scores, unmatched = [], 0
+        for repeat in range(repeats):
+            labels = drawn_labels(self.real, self.num_samples, label_draw)
+            windows, missing = matching_windows(held_out, labels, draw)
+            scores.append(self.scorer.score(windows, seed=self.seed + repeat))
+            unmatched += missing
+        if unmatched:
+            warnings.warn(
+                f"{unmatched} of the {repeats * self.num_samples} held-out windows have a style and content "
+                f"pair the {split} split lacks: drawn among its windows of that content instead",
+                stacklevel=2,
             )
-            for repeat in range(repeats)
-        ]
+        return scores
+
+    def _label_draw(self) -> torch.Generator:
+        return torch.Generator().manual_seed(self.seed)
 
 
 def confusion_figure(matrix: np.ndarray, names: list[str], path: Path) -> None:

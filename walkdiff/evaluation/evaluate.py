@@ -5,9 +5,12 @@ features of the real reference split, style and content recognition accuracy, di
 foot skating and jitter. Three rows are computed the same way, each as mean ± 1.96·σ/√repeats:
 
 - generated: `num` clips from the generator, asked for the labels of `num` reference windows drawn at
-  random (so every row holds each label as often as the reference split does);
-- real <split>: `num` windows drawn with replacement from the reference split itself;
-- real train vs <split>: `num` windows drawn from the training split, the floor a generator can reach.
+  random with replacement;
+- real <split>: `num` reference windows with those labels;
+- real train vs <split>: `num` windows of the training split with those labels, the floor a generator
+  can reach (each real window drawn among its split's windows of its style and content).
+
+So every row holds each label as often as the reference split does.
 
 FMD between two halves of the reference split (split by clip, balanced over styles) is reported too: with
 Xia's few test clips it shows how much of an FMD value is estimation noise.
@@ -36,11 +39,11 @@ from walkdiff.data.datasets import protocol_contents
 from walkdiff.evaluation.plan import Plan, protocol
 from walkdiff.evaluation.scorer import (
     MotionScorer,
-    WindowSet,
     drawn_labels,
     generate_windows,
     halves_fmd,
     load_evaluator,
+    matching_windows,
     window_set,
 )
 from walkdiff.metrics import format_summary, summarize, summarize_runs
@@ -130,16 +133,24 @@ def evaluate(
     scorer.set_reference(reference)
 
     rows = _Rows(scorer, seed)
+    # Every row holds the same labels each repeat: those of `num` reference windows drawn at random.
+    draw = torch.Generator().manual_seed(seed)
+    labels = [drawn_labels(reference, num, draw) for _ in range(repeats)]
     if model is not None:
         sampling = dict(sampler=sampler, steps=steps, guidance=guidance)
         finishes = _finishes(model, ground, fix_feet)
-        _generated_rows(
-            rows, model, reference, num, repeats, seed, batch_size, finishes, sampling, plan.timed
-        )
-    draw = torch.Generator().manual_seed(seed)
+        _generated_rows(rows, model, labels, seed, batch_size, finishes, sampling, plan.timed)
+    unmatched = 0
     for name, pool in ((f"real {split}", reference), (f"real train vs {split}", train)):
         for repeat in progress(range(repeats), desc=name, unit="repeat"):
-            rows.add(name, pool.take(torch.randint(len(pool), (num,), generator=draw)), repeat)
+            windows, missing = matching_windows(pool, labels[repeat], draw)
+            rows.add(name, windows, repeat)
+            unmatched += missing
+    if unmatched:
+        say(
+            f"walkdiff: evaluate: {unmatched} of the {repeats * num} floor windows have a style and content "
+            f"pair the training split lacks: drawn among its windows of that content instead"
+        )
     halves = [
         halves_fmd(reference, draw) for _ in progress(range(repeats), desc=f"{split} halves", unit="repeat")
     ]
@@ -258,24 +269,23 @@ class _Rows:
 
 
 def _generated_rows(
-    rows: _Rows, model, reference: WindowSet, num: int, repeats: int, seed: int, batch_size: int,
-    finishes: dict[str, tuple], sampling: dict, timed=None,
+    rows: _Rows, model, labels: list[tuple], seed: int, batch_size: int, finishes: dict[str, tuple],
+    sampling: dict, timed=None,
 ) -> None:  # fmt: skip
-    """Scores of `repeats` sets of `num` generated windows, each asked for the labels of `num` reference
-    windows drawn at random, once per row of `finishes` (row name -> (what is done to the sampled raw
-    windows, whether the row gets per-label figures)): the same windows in every row, so that rows differ
-    by what their finish changes and only that. `timed`: told the seconds of each batch of the first
-    repeat."""
+    """Scores of one set of generated windows per repeat, asked for that repeat's `labels`, once per row
+    of `finishes` (row name -> (what is done to the sampled raw windows, whether the row gets per-label
+    figures)): the same windows in every row, so that rows differ by what their finish changes and only
+    that. `timed`: told the seconds of each batch of the first repeat."""
     generator = torch.Generator(device=model.device).manual_seed(seed)
-    draw = torch.Generator().manual_seed(seed)
-    for repeat in range(repeats):
+    for repeat, asked in enumerate(labels):
         windows = generate_windows(
-            model, drawn_labels(reference, num, draw), generator, batch_size, grounded=False,
-            desc=f"generating, repeat {repeat + 1} of {repeats}", timed=timed if repeat == 0 else None,
+            model, asked, generator, batch_size, grounded=False,
+            desc=f"generating, repeat {repeat + 1} of {len(labels)}", timed=timed if repeat == 0 else None,
             **sampling,
         )  # fmt: skip
-        for row, (finish, labels) in finishes.items():
-            rows.add(row, replace(windows, raw=torch.from_numpy(finish(windows.raw.numpy()))), repeat, labels)
+        for row, (finish, per_label) in finishes.items():
+            windows_finished = replace(windows, raw=torch.from_numpy(finish(windows.raw.numpy())))
+            rows.add(row, windows_finished, repeat, per_label)
 
 
 def _finishes(model, ground: bool, fix_feet: bool) -> dict[str, tuple]:

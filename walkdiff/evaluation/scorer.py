@@ -214,6 +214,30 @@ def drawn_labels(
     return reference.style[index], reference.content[index]
 
 
+def matching_windows(
+    pool: WindowSet, labels: tuple[torch.Tensor, torch.Tensor], generator: torch.Generator
+) -> tuple[WindowSet, int]:
+    """Windows of `pool` with the given (style ids, content ids), each drawn at random among the pool's
+    windows of its pair: real windows in another set's mixture of labels, so that a floor row (training
+    windows against test ones) holds the labels the generated row holds. A pair the pool lacks is drawn
+    among its windows of that content, or of any content if it has none; how many were is returned
+    beside (the caller says so)."""
+    style, content = labels
+    width = int(max(pool.content.max(), content.max())) + 1
+    pool_cells, cells = pool.style * width + pool.content, style * width + content
+    index = torch.empty(len(cells), dtype=torch.long)
+    unmatched = 0
+    for cell in cells.unique():
+        wanted = cells == cell
+        members = (pool_cells == cell).nonzero().flatten()
+        if len(members) == 0:
+            unmatched += int(wanted.sum())
+            members = (pool.content == cell % width).nonzero().flatten()
+            members = members if len(members) else torch.arange(len(pool))
+        index[wanted] = members[torch.randint(len(members), (int(wanted.sum()),), generator=generator)]
+    return pool.take(index), unmatched
+
+
 def generate_windows(
     model,
     labels: tuple[torch.Tensor, torch.Tensor],
