@@ -43,7 +43,7 @@ BAR = {
     "multimodality": (">=", 0.9),
 }
 TURN_TOLERANCE = 0.2
-TURNING_DEG_S = 10.0  # a label whose real windows turn faster than this on average is a turning label
+TURNING_DEG_S = 10.0  # a label whose real windows (held-out and training alike) turn faster is a turning one
 EVALUATE_DEFAULTS = {"num": 384, "repeats": 3, "sampler": "ddpm", "steps": None, "guidance": 1.0}
 VARIANT_KEYS = {
     "name",
