@@ -143,9 +143,9 @@ class MotionMetrics(L.Callback):
         with tempfile.TemporaryDirectory() as tmp:
             confusion = Path(tmp) / "style_confusion.png"
             projection = Path(tmp) / "feature_pca.png"
-            matrix = MulticlassConfusionMatrix(len(styles), normalize="true")(
-                generated.style_logits, generated.style
-            )
+            counts = MulticlassConfusionMatrix(len(styles))(generated.style_logits, generated.style).float()
+            # Shares of each requested style; a style the drawn labels did not ask for is an empty row.
+            matrix = counts / counts.sum(dim=1, keepdim=True).clamp(min=1)
             confusion_figure(matrix.numpy(), styles, confusion)
             projection_figure(self.real, generated, styles, projection)
             for path in (confusion, projection):

@@ -39,6 +39,7 @@ from walkdiff.data.datasets import protocol_contents
 from walkdiff.evaluation.plan import Plan, protocol
 from walkdiff.evaluation.scorer import (
     MotionScorer,
+    WindowSet,
     drawn_labels,
     generate_windows,
     halves_fmd,
@@ -140,17 +141,7 @@ def evaluate(
         sampling = dict(sampler=sampler, steps=steps, guidance=guidance)
         finishes = _finishes(model, ground, fix_feet)
         _generated_rows(rows, model, labels, seed, batch_size, finishes, sampling, plan.timed)
-    unmatched = 0
-    for name, pool in ((f"real {split}", reference), (f"real train vs {split}", train)):
-        for repeat in progress(range(repeats), desc=name, unit="repeat"):
-            windows, missing = matching_windows(pool, labels[repeat], draw)
-            rows.add(name, windows, repeat)
-            unmatched += missing
-    if unmatched:
-        say(
-            f"walkdiff: evaluate: {unmatched} of the {repeats * num} floor windows have a style and content "
-            f"pair the training split lacks: drawn among its windows of that content instead"
-        )
+    _real_rows(rows, {f"real {split}": reference, f"real train vs {split}": train}, labels, draw)
     halves = [
         halves_fmd(reference, draw) for _ in progress(range(repeats), desc=f"{split} halves", unit="repeat")
     ]
@@ -286,6 +277,22 @@ def _generated_rows(
         for row, (finish, per_label) in finishes.items():
             windows_finished = replace(windows, raw=torch.from_numpy(finish(windows.raw.numpy())))
             rows.add(row, windows_finished, repeat, per_label)
+
+
+def _real_rows(rows: _Rows, pools: dict[str, WindowSet], labels: list[tuple], draw: torch.Generator) -> None:
+    """Per repeat, each pool's windows with that repeat's labels, each drawn among the pool's windows of
+    its style and content; a pair a pool lacks is said."""
+    unmatched = 0
+    for name, pool in pools.items():
+        for repeat in progress(range(len(labels)), desc=name, unit="repeat"):
+            windows, missing = matching_windows(pool, labels[repeat], draw)
+            rows.add(name, windows, repeat)
+            unmatched += missing
+    if unmatched:
+        say(
+            f"walkdiff: evaluate: {unmatched} real windows have a style and content pair their split "
+            f"lacks: drawn among its windows of that content instead"
+        )
 
 
 def _finishes(model, ground: bool, fix_feet: bool) -> dict[str, tuple]:
