@@ -411,8 +411,8 @@ def tiny_evaluator(root: Path, path: Path) -> Path:
 def test_a_label_turns_only_when_its_held_out_and_training_windows_turn_alike():
     from walkdiff.bench.ablate import turning
 
-    def turn(mean):
-        return {"mean": mean}
+    def turn(mean, ci=3.0):
+        return {"mean": mean, "low": mean - ci, "high": mean + ci}
 
     assert turning(turn(58.9), turn(68.5)) and turning(turn(-44.5), turn(-63.4))  # walk-turn-left, -right
     assert not turning(turn(-17.9), turn(5.7))  # held-out runs that curve, training runs that do not
@@ -421,6 +421,7 @@ def test_a_label_turns_only_when_its_held_out_and_training_windows_turn_alike():
         and not turning(turn(9.9), turn(12.4))
         and not turning(None, turn(50))
     )
+    assert not turning(turn(18.5, ci=19.2), turn(12.4))  # held-out punches whose turn is not clear of zero
 
 
 def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_path, monkeypatch):

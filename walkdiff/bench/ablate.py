@@ -245,13 +245,15 @@ def _evaluate(out_dir: Path, name: str, trained: str, settings: dict, evaluator:
 
 
 def turning(held_out: dict | None, train: dict | None) -> bool:
-    """A label turns when its held-out and its training windows both turn at least `TURNING_DEG_S` the
-    same way: the turn is the label's, not that of the few held-out clips that happen to curve (real
-    runs of the disguised actions folder: -17.9 deg/s held out, +5.7 in training)."""
+    """A label turns when its held-out windows turn clear of zero (their interval) and they and its
+    training windows both turn at least `TURNING_DEG_S` the same way: the turn is the label's, not that of
+    the few held-out clips that happen to curve (real runs of the disguised actions folder: -17.9 deg/s
+    held out, +5.7 in training)."""
     if not (held_out and train):
         return False
     a, b = held_out["mean"], train["mean"]
-    return min(abs(a), abs(b)) >= TURNING_DEG_S and (a > 0) == (b > 0)
+    clear = held_out["low"] > 0 or held_out["high"] < 0
+    return clear and min(abs(a), abs(b)) >= TURNING_DEG_S and (a > 0) == (b > 0)
 
 
 def figures(train: dict, evaluation: dict) -> dict:
