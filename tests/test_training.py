@@ -17,6 +17,7 @@ import torch
 
 from walkdiff.common.errors import WalkdiffError
 from walkdiff.data.datamodule import MotionDataModule
+from walkdiff.models.body_terms import BodyTerms
 from walkdiff.models.styled_ddpm import StyledMotionDiffusion, TrainingDiverged
 
 TINY = dict(
@@ -254,6 +255,53 @@ def test_the_foot_height_loss_measures_the_feet_in_the_world_in_contact_heights(
     plain.normalizer.load_state_dict(dm.normalizer.state_dict())
     plain.profile = dm.profile
     assert "foot_height" not in plain.generator_losses(batch, x0_hat, x0_hat, x0_hat, t, adversarial=False)
+
+
+def test_the_low_foot_term_stops_a_foot_the_sample_itself_puts_on_the_ground(tiny_root):
+    """The low-foot term judges the prediction by its own geometry, as the skating metric does: a foot
+    near the floor that slides beyond the contact speed costs how far beyond, a foot as fast in the air
+    or still on the floor costs nothing, and the gradient both slows the low foot and lifts it."""
+    dm = datamodule(tiny_root)
+    dm.setup("fit")
+    body = BodyTerms(dm.profile, fps=30.0)
+    spec = dm.profile.contacts
+    joints, frames = len(body.skeleton.parents), 4
+    floor = torch.zeros(4)
+    step = 3 * spec.speed_threshold / 30.0  # three contact speed thresholds per frame
+
+    def cost(height_in_contact_heights: float, moving: bool) -> torch.Tensor:
+        positions = torch.zeros(1, frames, joints, 3)
+        positions[..., 1] = height_in_contact_heights * spec.height_threshold
+        if moving:
+            positions[:, :, :, 0] = torch.arange(frames, dtype=torch.float32)[:, None] * step
+        positions.requires_grad_(True)
+        velocity = body.velocities(positions)
+        return body.low_foot_slide(positions, velocity, floor), positions
+
+    sliding, positions = cost(0.0, moving=True)
+    assert sliding.shape == (1, frames - 1, 4)
+    assert sliding.mean().item() == pytest.approx(2.0, rel=1e-3)  # 3 thresholds: 2 beyond the first
+    sliding.sum().backward()
+    feet = positions.grad[:, :, body.feet]
+    assert (feet[:, -1, :, 0] > 0).all()  # slowed: the last frame pulled back along the slide
+    assert cost(3.0, moving=True)[0].max().item() < 1e-6  # the same speed in the air
+    assert cost(0.0, moving=False)[0].max().item() == 0  # planted
+    # Just at the contact height the foot is half "near the ground", and the term lifts it.
+    edge, positions = cost(1.0, moving=True)
+    assert edge.mean().item() == pytest.approx(0.5, rel=1e-3)
+    edge.sum().backward()
+    assert (positions.grad[:, :, body.feet, 1] < 0).all()
+    # A joint never planted in the training data (NaN floor) is never near it.
+    assert body.low_foot_slide(positions, body.velocities(positions), torch.full((4,), float("nan"))).max() == 0
+    # In the model: measured from the floor real planted feet stand on, weighted by its lambda.
+    model = StyledMotionDiffusion(dm.spec, **TINY, lambda_low_foot=2.0)
+    model.normalizer.load_state_dict(dm.normalizer.state_dict())
+    model.profile = dm.profile
+    batch = next(iter(dm.train_dataloader()))
+    t = torch.zeros(len(batch["features"]), dtype=torch.long)
+    x0 = batch["features"]
+    low_foot = model.generator_losses(batch, x0, x0, x0, t, adversarial=False)["low_foot"]
+    assert torch.isfinite(low_foot) and model.total_loss({"low_foot": low_foot}) == 2 * low_foot
 
 
 def test_a_slowed_rerun_trains_the_same_and_keeps_both_runs_checkpoints(tiny_root, tmp_path, monkeypatch):

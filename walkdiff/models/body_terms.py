@@ -16,6 +16,10 @@ from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import features_to_positions
 
 
+# How sharply "near the ground" falls off above the contact height, in contact heights.
+LOW_FOOT_SOFTNESS = 0.1
+
+
 def at_least_float32(x: torch.Tensor) -> torch.Tensor:
     return x.to(torch.promote_types(x.dtype, torch.float32))
 
@@ -57,6 +61,21 @@ class BodyTerms:
         """Squared horizontal foot speed (..., F-1, feet) of predicted velocities where `planted`
         (..., F-1, feet) is 1: MDM's foot-contact term before its mean."""
         return velocity_hat[..., self.feet, :][..., [0, 2]].pow(2).sum(dim=-1) * planted
+
+    def low_foot_slide(
+        self, positions_hat: torch.Tensor, velocity_hat: torch.Tensor, floor: torch.Tensor
+    ) -> torch.Tensor:
+        """How far beyond the contact speed threshold (..., F-1, feet) predicted feet slide horizontally over
+        steps where the predicted foot itself is near the ground (below one contact height above `floor`,
+        (feet,) in data units, at both ends): the geometric rule the skating metric counts by. Linear
+        beyond the threshold, so the rare fast real foot near the floor (a landing) does not dominate;
+        soft in height, so a sliding foot just at the contact height is pushed up as well as slowed down.
+        A NaN floor (a joint never planted) is never near it."""
+        height = self.in_heights(positions_hat[..., self.feet, 1] - floor)
+        low = torch.sigmoid((1 - height.nan_to_num(nan=float("inf"))) / LOW_FOOT_SOFTNESS)
+        low = low[..., 1:, :] * low[..., :-1, :]
+        speed = velocity_hat[..., self.feet, :][..., [0, 2]].norm(dim=-1)
+        return torch.relu(speed - 1) * low
 
     def foot_velocity_error(self, velocity_hat: torch.Tensor, velocity: torch.Tensor) -> torch.Tensor:
         """Predicted minus real velocities of the feet (..., F-1, feet, 3), in contact speed thresholds: all

@@ -10,6 +10,7 @@ Loss of the generator (the denoiser), per batch:
         + lambda_velocity * w_t * ||dP(x0_hat) - dP(x0)||^2           (joint velocities)
         + lambda_foot     * w_t * ||dP_feet(x0_hat)||^2 where x0's foot is in contact  (no sliding)
         + lambda_foot_height * w_t * ||P_feet,y(x0_hat) - P_feet,y(x0)||^2   (how high the feet swing)
+        + lambda_low_foot * w_t * max(|dP_feet,xz(x0_hat)| - 1, 0) where x0_hat's own foot is near the ground
         + lambda_foot_velocity * w_t * ||dP_feet(x0_hat) - dP_feet(x0)||^2  (feet as fast as real ones)
         + lambda_position * w_t * ||(P - P_root)(x0_hat) - (P - P_root)(x0)||^2  (the pose's geometry)
 The position terms measure velocities in multiples of the skeleton profile's contact speed threshold
@@ -20,7 +21,9 @@ The paper's losses constrain root and contact labels but not the legs, so its st
 foot term is the foot-contact loss of MDM (Tevet et al. 2023), which is what the skating metric checks.
 The foot-height term weighs the feet's world heights on their own: in the position term they are 4 of
 the skeleton's joints and relative to the root, and a swinging foot that skims the ground (a toe that
-drags) is foot skating by the geometric rule that judges real and generated motion alike.
+drags) is foot skating by the geometric rule that judges real and generated motion alike. The low-foot
+term applies that rule to the prediction itself: the foot term stops a foot where the real clip plants
+one, but a sample is no one real clip, and its feet skim the floor where real ones are in the air.
 The discriminator sees real x0 against detached x0_hat: 1/2 (D(x0) - 1)^2 + 1/2 w_t D(x0_hat)^2.
 
 Why w_t = alpha_bar_t: with eps-prediction, x0_hat = (x_t - sqrt(1 - abar) eps_hat) / sqrt(abar), so an
@@ -103,6 +106,7 @@ class StyledMotionDiffusion(MotionModule):
         lambda_velocity: float = 0.0,
         lambda_foot: float = 0.0,
         lambda_foot_height: float = 0.0,
+        lambda_low_foot: float = 0.0,
         lambda_foot_velocity: float = 0.0,
         lambda_position: float = 0.0,
         adv_warmup_batches: int = 500,
@@ -213,8 +217,8 @@ class StyledMotionDiffusion(MotionModule):
     @property
     def uses_positions(self) -> bool:
         h = self.hparams
-        return max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height, h.lambda_foot_velocity,
-                   h.lambda_position) > 0  # fmt: skip
+        return max(h.lambda_velocity, h.lambda_foot, h.lambda_foot_height, h.lambda_low_foot,
+                   h.lambda_foot_velocity, h.lambda_position) > 0  # fmt: skip
 
     @property
     def contact_spec(self):
@@ -273,6 +277,9 @@ class StyledMotionDiffusion(MotionModule):
             if h.lambda_foot_height > 0:
                 height_error = body.foot_height_error(positions_hat, positions)
                 losses["foot_height"] = (weight * height_error.pow(2).mean(dim=(1, 2))).mean()
+            if h.lambda_low_foot > 0:
+                low_slide = body.low_foot_slide(positions_hat, velocity_hat, self.planted_height)
+                losses["low_foot"] = (weight * low_slide.mean(dim=(1, 2))).mean()
             if h.lambda_foot_velocity > 0:
                 feet_error = body.foot_velocity_error(velocity_hat, velocity).pow(2).sum(-1)
                 losses["foot_velocity"] = (weight * feet_error.mean(dim=(1, 2))).mean()
@@ -298,6 +305,7 @@ class StyledMotionDiffusion(MotionModule):
             "velocity": h.lambda_velocity,
             "foot": h.lambda_foot,
             "foot_height": h.lambda_foot_height,
+            "low_foot": h.lambda_low_foot,
             "foot_velocity": h.lambda_foot_velocity,
             "position": h.lambda_position,
             "adv": h.lambda_adv,
