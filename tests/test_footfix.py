@@ -9,9 +9,17 @@ import torch
 
 from walkdiff.metrics.physics import FootSkating
 from walkdiff.motion.bvh import read_bvh
-from walkdiff.motion.footfix import ankle_offsets, contact_runs, fix_feet, fix_feet_features, two_bone_ik
+from walkdiff.motion.footfix import (
+    ankle_offsets,
+    contact_runs,
+    fix_feet,
+    fix_feet_features,
+    planted_heights,
+    set_down,
+    two_bone_ik,
+)
 from walkdiff.motion.kinematics import motion_world_positions
-from walkdiff.motion.representation import FeatureLayout, encode, features_to_positions
+from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions
 from walkdiff.motion.resample import resample
 from walkdiff.motion.skeleton import Motion
 
@@ -207,3 +215,27 @@ def test_grounding_moves_a_clip_only_by_how_much_further_off_it_is_than_real_cli
         got = ground(moved, skeleton, CONTACTS, heights, tolerance)[0, 0, root] - moved[0, 0, root]
         assert got == pytest.approx(expected, abs=1e-4)
     assert ground_tolerance([r[:10] for r in raws], skeleton, CONTACTS, heights, window=24) == 0.0
+
+
+def test_set_down_pins_stance_feet_the_labels_miss_but_not_a_foot_sweeping_past(xia_dir):
+    """Generated clips label only some of their stance frames: `set_down` adds every frame where the clip
+    puts a foot down by the geometry skating is judged by, near where real planted feet stand and slower
+    than a few contact speeds. On a real clip with its labels taken away it finds them again; the same
+    clip dragged along at 5 contact speeds has no foot down; a joint never planted (NaN) never is."""
+    motion = resample(read_bvh(xia_dir / "proud_01_000.bvh"), 30.0)
+    profile = synthetic.xia_profile(motion)
+    spec, skeleton = profile.contacts, profile.canonical_skeleton
+    raw = encode(motion, profile)
+    layout = FeatureLayout(skeleton.num_joints)
+    labels = raw[:, layout.contacts] > 0.5
+    heights = planted_heights([raw], skeleton, spec)
+    clip = decode(raw, skeleton, 1 / 30.0)
+    found = set_down(clip, np.zeros_like(labels, dtype=float), spec, heights) > 0.5
+    assert labels.sum() > 20 and (found & labels).sum() >= 0.9 * labels.sum()
+    assert (set_down(clip, labels.astype(float), spec, heights) >= labels).all()  # the labels are kept
+    dragged = Motion(clip.skeleton, clip.rotations, clip.positions.copy(), clip.frame_time)
+    dragged.positions[:, 0, 0] += np.arange(clip.num_frames) * 5 * spec.speed_threshold / 30.0
+    assert not set_down(dragged, np.zeros_like(labels, dtype=float), spec, heights).any()
+    never = np.full(4, np.nan)
+    assert not set_down(clip, np.zeros_like(labels, dtype=float), spec, never).any()
+    assert (set_down(clip, labels.astype(float), spec, None) == labels).all()  # no floor: the labels

@@ -292,7 +292,9 @@ def test_the_low_foot_term_stops_a_foot_the_sample_itself_puts_on_the_ground(tin
     edge.sum().backward()
     assert (positions.grad[:, :, body.feet, 1] < 0).all()
     # A joint never planted in the training data (NaN floor) is never near it.
-    assert body.low_foot_slide(positions, body.velocities(positions), torch.full((4,), float("nan"))).max() == 0
+    assert (
+        body.low_foot_slide(positions, body.velocities(positions), torch.full((4,), float("nan"))).max() == 0
+    )
     # In the model: measured from the floor real planted feet stand on, weighted by its lambda.
     model = StyledMotionDiffusion(dm.spec, **TINY, lambda_low_foot=2.0)
     model.normalizer.load_state_dict(dm.normalizer.state_dict())

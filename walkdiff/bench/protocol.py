@@ -87,7 +87,7 @@ def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.
         x = restyle(model, x0, target, content, strength, how, generator, keep)
         restyled = model.to_raw(x, True)
         if match is not None:  # as `transfer` makes them: feet pinned where statistics are matched
-            restyled = fix_feet_features(restyled, model.profile, model.spec["fps"])
+            restyled = fix_feet_features(restyled, model.profile, model.spec["fps"], model.floor_heights)
         restyled = torch.from_numpy(restyled)
         outputs += _clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
         paired += [source] * len(target)

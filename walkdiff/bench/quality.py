@@ -61,7 +61,7 @@ def with_feet_fixed(model, windows):
     """The windows with `--fix-feet` applied to their raw features."""
     from walkdiff.motion.footfix import fix_feet_features
 
-    raw = fix_feet_features(windows.raw.numpy(), model.profile, model.spec["fps"])
+    raw = fix_feet_features(windows.raw.numpy(), model.profile, model.spec["fps"], model.floor_heights)
     return replace(windows, raw=torch.from_numpy(raw))
 
 

@@ -426,7 +426,11 @@ def _made(model, x: torch.Tensor, match: StyleStatistics | None) -> np.ndarray:
     """Sampled windows in data units as `sample` writes them: grounded, and with matched statistics
     their feet pinned (`Request.pins_feet`)."""
     raw = model.to_raw(x, True)
-    return raw if match is None else fix_feet_features(raw, model.profile, model.spec["fps"])
+    return (
+        raw
+        if match is None
+        else fix_feet_features(raw, model.profile, model.spec["fps"], model.floor_heights)
+    )
 
 
 def _per_style(run: Run, windows: WindowSet, hits: torch.Tensor) -> dict[str, dict]:

@@ -309,7 +309,7 @@ def _finishes(model, ground: bool, fix_feet: bool) -> dict[str, tuple]:
     if fix_feet:
         fps = model.spec["fps"]
         out["generated, feet fixed"] = (
-            lambda raw: fix_feet_features(finished(raw), model.profile, fps),
+            lambda raw: fix_feet_features(finished(raw), model.profile, fps, model.floor_heights),
             True,
         )
     return out

@@ -15,7 +15,6 @@ from walkdiff.common.errors import WalkdiffError
 from walkdiff.motion.profile import SkeletonProfile
 from walkdiff.motion.representation import features_to_positions
 
-
 # How sharply "near the ground" falls off above the contact height, in contact heights.
 LOW_FOOT_SOFTNESS = 0.1
 

@@ -569,12 +569,17 @@ class StyledMotionDiffusion(MotionModule):
         raw = self.normalizer.denormalize(x).float().cpu().numpy()
         return self.ground(raw) if grounded else raw
 
+    @property
+    def floor_heights(self) -> np.ndarray | None:
+        """(4,) where real planted feet stand, in data units; None for a checkpoint saved before walkdiff
+        measured it."""
+        return self.planted_height.cpu().numpy() if self.grounded_heights else None
+
     def ground(self, raw: np.ndarray) -> np.ndarray:
         """Raw features (..., F, D) shifted so their planted feet stand where real ones do."""
-        if not self.grounded_heights:
+        if self.floor_heights is None:
             raise WalkdiffError(
                 "this checkpoint was saved before walkdiff stored where planted feet stand, so its clips "
                 "cannot be grounded: retrain it, or pass --no-ground"
             )
-        heights = self.planted_height.cpu().numpy()
-        return ground(raw, self.skeleton, self.contact_spec, heights, float(self.ground_tolerance))
+        return ground(raw, self.skeleton, self.contact_spec, self.floor_heights, float(self.ground_tolerance))

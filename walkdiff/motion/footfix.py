@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from walkdiff.motion.kinematics import forward_kinematics
+from walkdiff.motion.kinematics import forward_kinematics, motion_world_positions
 from walkdiff.motion.profile import ContactSpec, SkeletonProfile
 from walkdiff.motion.representation import FeatureLayout, decode, encode, features_to_positions
 from walkdiff.motion.rotations import rotation_between
@@ -31,6 +31,9 @@ from walkdiff.motion.skeleton import Motion, Skeleton
 
 # A leg is never stretched to exactly its full length: the knee angle would lose its direction.
 MAX_REACH = 0.999
+# A foot the clip puts down counts as planted below this many contact speeds: a stance foot that slips
+# (generated slides run at 1-3 contact speeds over low runs of 12 frames, median), not a swing passing low.
+SLIP_SPEEDS = 3.0
 
 
 def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
@@ -186,17 +189,40 @@ def fix_feet(
     return Motion(skeleton, rotations, motion.positions, motion.frame_time)
 
 
-def fix_feet_features(raw: np.ndarray, profile: SkeletonProfile, fps: float) -> np.ndarray:
-    """`fix_feet` on feature windows (..., F, D) in data units: only the rotation channels of the joints
-    and frames the IK moved change. The others keep their channels as sampled: encoding them again would
-    orthonormalise their 6D rotations, the same pose but other numbers (the evaluator reads the numbers)."""
+def set_down(motion: Motion, labels: np.ndarray, spec: ContactSpec, heights: np.ndarray | None) -> np.ndarray:
+    """The contacts (F, 4) to pin in a generated clip: where the model labels a foot planted (`labels`),
+    and where the clip itself puts it down, within the contact height of where real planted feet stand
+    (`heights`, `planted_heights`; NaN: never) and slower than SLIP_SPEEDS contact speeds. The model marks
+    only a third of the steps where its feet slide by the geometric rule skating is judged by: the rest
+    are stance feet it labels as swinging. `heights` None: the labels alone."""
+    labels = np.asarray(labels, dtype=np.float64)
+    if heights is None:
+        return labels
+    feet = motion_world_positions(motion)[:, [motion.skeleton.index(n) for n in spec.joints]]
+    if len(feet) < 2:  # no step to measure a speed by
+        return labels
+    speed = np.linalg.norm(np.gradient(feet[..., [0, 2]], axis=0), axis=-1) * motion.fps
+    with np.errstate(invalid="ignore"):  # a NaN height (a joint never planted) is never down
+        down = (feet[..., 1] - np.asarray(heights) < spec.height_threshold) & (
+            speed < SLIP_SPEEDS * spec.speed_threshold
+        )
+    return np.maximum(labels, down)
+
+
+def fix_feet_features(
+    raw: np.ndarray, profile: SkeletonProfile, fps: float, heights: np.ndarray | None = None
+) -> np.ndarray:
+    """`fix_feet` on feature windows (..., F, D) in data units, pinning `set_down`'s contacts: only the
+    rotation channels of the joints and frames the IK moved change. The others keep their channels as
+    sampled: encoding them again would orthonormalise their 6D rotations, the same pose but other
+    numbers (the evaluator reads the numbers)."""
     raw = np.asarray(raw, dtype=np.float32)
     skeleton, spec = profile.canonical_skeleton, profile.contacts
     layout = FeatureLayout(skeleton.num_joints)
     out = raw.copy()
     for index in np.ndindex(raw.shape[:-2]):
         motion = decode(raw[index], skeleton, 1.0 / fps)
-        fixed = fix_feet(motion, raw[index][:, layout.contacts], spec)
+        fixed = fix_feet(motion, set_down(motion, raw[index][:, layout.contacts], spec, heights), spec)
         moved = np.abs(fixed.rotations - motion.rotations).max(axis=(-2, -1)) > 0  # (F, J)
         sixd = encode(fixed, profile)[:, layout.rotations].reshape(len(moved), -1, 6)
         window = out[index][:, layout.rotations].reshape(sixd.shape)

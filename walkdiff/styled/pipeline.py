@@ -34,6 +34,7 @@ from walkdiff.models.style_labels import DEFAULT_TRANSITION, StyleTimeline, pars
 from walkdiff.models.style_spec import Style
 from walkdiff.models.style_statistics import StyleStatistics
 from walkdiff.motion.footfix import fix_feet as pinned_feet
+from walkdiff.motion.footfix import set_down
 from walkdiff.motion.representation import FeatureLayout, decode, encode, start_pose
 from walkdiff.motion.skeleton import Motion
 from walkdiff.retarget.take import Take
@@ -498,6 +499,7 @@ class StyledGenerator(Pipeline, Edits):
         position, heading = start if start is not None else (None, 0.0)
         motion = decode(raw, model.skeleton, 1.0 / self.fps, position, heading)
         if fix_feet:
-            contacts = raw[:, FeatureLayout(model.skeleton.num_joints).contacts]
-            motion = pinned_feet(motion, contacts, model.profile.contacts)
+            spec = model.profile.contacts
+            labels = raw[:, FeatureLayout(model.skeleton.num_joints).contacts]
+            motion = pinned_feet(motion, set_down(motion, labels, spec, model.floor_heights), spec)
         return motion
