@@ -497,12 +497,17 @@ def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_pa
         "variants:\n"
         "  - {name: baseline, factor: baseline}\n"
         "  - {name: guided, factor: guidance, from: baseline, evaluate: {guidance: 2.0}}\n"
+        "  - {name: fixed, factor: feet fixed, from: baseline, evaluate: {fix_feet: true}}\n"
     )
     args = ["bench", "ablate", "--config", str(config), "--grid", str(grid), "--out", "abl"]
     assert main(args) == 0
     result = json.loads((tmp_path / "abl" / "ablation.json").read_text())
     rows = {v["name"]: v for v in result["variants"]}
-    assert list(rows) == ["baseline", "guided"]
+    assert list(rows) == ["baseline", "guided", "fixed"]
+    # Scored with fix_feet, the bar judges the windows as `generate --fix-feet` writes them.
+    fixed = json.loads(Path("abl/fixed/eval/report.json").read_text())["rows"]["generated, feet fixed"]
+    assert rows["fixed"]["finish"] == "generated, feet fixed" and rows["baseline"]["finish"] == "generated"
+    assert rows["fixed"]["fmd"]["mean"] == round(fixed["fmd"]["mean"], 4)
     assert rows["baseline"]["batches"] == 4  # the grid's budget, not the config's 6
     assert json.loads(Path("abl/guided/eval/report.json").read_text())["settings"]["guidance"] == 2.0
     assert not Path("abl/guided/train.json").exists()  # scored from the baseline's model
@@ -514,7 +519,7 @@ def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_pa
         assert row["at_bar"]["all"] == all(ok for k, ok in row["at_bar"].items() if k != "all")
         assert [m["batches"] for m in row["curve"]] == [2, 4]
     table = (tmp_path / "abl" / "ablation.md").read_text()
-    assert "| guidance | guided | 4 |" in table
+    assert "| guidance | guided | 4 |" in table and "| feet fixed | fixed, feet fixed | 4 |" in table
     # Resumed: nothing is trained again; the table is the same.
     stamp = Path("abl/baseline/train.json").stat().st_mtime_ns
     assert main(args) == 0

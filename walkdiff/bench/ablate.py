@@ -44,7 +44,14 @@ BAR = {
 }
 TURN_TOLERANCE = 0.2
 TURNING_DEG_S = 10.0  # a label whose real windows (held-out and training alike) turn faster is a turning one
-EVALUATE_DEFAULTS = {"num": 384, "repeats": 3, "sampler": "ddpm", "steps": None, "guidance": 1.0}
+EVALUATE_DEFAULTS = {
+    "num": 384,
+    "repeats": 3,
+    "sampler": "ddpm",
+    "steps": None,
+    "guidance": 1.0,
+    "fix_feet": False,  # true: the bar judges the windows as `generate --fix-feet` writes them
+}
 VARIANT_KEYS = {
     "name",
     "factor",
@@ -241,6 +248,8 @@ def _evaluate(out_dir: Path, name: str, trained: str, settings: dict, evaluator:
     ]
     if settings["steps"]:
         args += ["--steps", str(settings["steps"])]
+    if settings["fix_feet"]:
+        args.append("--fix-feet")
     _walkdiff(args, out_dir / name / "evaluate.log", threads)
 
 
@@ -260,7 +269,8 @@ def figures(train: dict, evaluation: dict) -> dict:
     """One variant's row: each bar figure as a ratio to real with its interval, the turning labels'
     turn rates beside real, the cost, and the training curve of the metrics callback."""
     rows = evaluation["rows"]
-    generated, real = rows["generated"], rows[f"real {evaluation['settings']['split']}"]
+    made = finish(evaluation)
+    generated, real = rows[made], rows[f"real {evaluation['settings']['split']}"]
     floor = rows[f"real train vs {evaluation['settings']['split']}"]["fmd"]
 
     def ratio(summary: dict, reference: float) -> dict | None:
@@ -290,12 +300,12 @@ def figures(train: dict, evaluation: dict) -> dict:
     for label, label_rows in evaluation.get("per_content", {}).items():
         real_turn = label_rows.get(f"real {split}", {}).get("turn_deg_s")
         floor_turn = label_rows.get(f"real train vs {split}", {}).get("turn_deg_s")
-        made = label_rows.get("generated", {}).get("turn_deg_s")
-        if made and turning(real_turn, floor_turn):
+        turn = label_rows.get(made, {}).get("turn_deg_s")
+        if turn and turning(real_turn, floor_turn):
             turns[label] = {
-                "generated_deg_s": _interval(made),
+                "generated_deg_s": _interval(turn),
                 "real_deg_s": _interval(real_turn),
-                "ratio": ratio(made, real_turn["mean"]),
+                "ratio": ratio(turn, real_turn["mean"]),
             }
     row["turns"] = turns
     row["at_bar"] = _at_bar(row)
@@ -307,10 +317,17 @@ def figures(train: dict, evaluation: dict) -> dict:
         {k: m[k] for k in ("batches", "fmd", "style_acc", "skate_ratio")} for m in train["measurements"]
     ]
     row["evaluate_s"] = evaluation["elapsed_s"]
+    row["finish"] = made
     # The metrics callback's bar (style, FMD, skating; its own smaller samples): from which batch it holds.
     held = (train.get("time_to_bar") or {}).get("from_then_on")
     row["callback_bar_from"] = None if held is None else {k: held[k] for k in ("batches", "training_s")}
     return row
+
+
+def finish(evaluation: dict) -> str:
+    """The row of generated windows the bar judges: as `generate --fix-feet` writes them when the
+    variant was scored with `fix_feet`, else as sampled (grounded)."""
+    return "generated, feet fixed" if evaluation["settings"].get("fix_feet") else "generated"
 
 
 def _interval(summary: dict) -> dict:
@@ -418,7 +435,7 @@ def format_table(result: dict) -> str:
         cells = [
             *([f"`{v['config']}`"] if configs else []),
             v["factor"],
-            v["name"],
+            v["name"] + (", feet fixed" if v.get("finish") == "generated, feet fixed" else ""),
             str(v["batches"]),
             f"{v['s_per_batch']:.2f}" if v["s_per_batch"] else "–",
             "–" if held is None else f"{held['batches']} ({held['training_s'] / 60:.1f} min)",

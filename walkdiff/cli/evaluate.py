@@ -84,7 +84,7 @@ def add_parsers(sub) -> None:
     )  # fmt: skip
     p.add_argument(
         "--fix-feet", action="store_true",
-        help="also score the windows with their feet pinned during the model's contacts, as generate "
+        help="also score the windows with their feet pinned while planted, as generate "
         "--fix-feet gives them (a row beside)",
     )  # fmt: skip
     p.add_argument("--mlflow-experiment", default=None, help="log metrics and reports into an MLflow run")
