@@ -54,7 +54,8 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--fix-feet", action=argparse.BooleanOptionalAction, default=None,
-        help="pin feet (IK) while planted: predicted contacts and feet the clip puts down; default: on where --style-clip statistics are matched",
+        help="pin feet (IK) while planted: predicted contacts and feet the clip puts down; "
+        "default: on where --style-clip statistics are matched",
     )  # fmt: skip
     p.add_argument(
         "--no-ground", dest="ground", action="store_false",
