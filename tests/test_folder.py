@@ -741,7 +741,7 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     assert evaluator.data.init_args.batch_size == 64
     # A varied folder's labels enter every layer of the denoiser (adaLN-Zero); a walking folder's a prefix.
     assert OmegaConf.create(config).model.init_args.conditioning == "adaln"
-    assert OmegaConf.create(config).model.init_args.lambda_low_foot == 4.0  # its feet do not skim the floor
+    assert OmegaConf.create(config).model.init_args.lambda_low_foot == 4.0  # feet the sample puts down stay
 
     walking = folder("walking", {"01": "walk", "13": "run"})
     text = scan(walking, out=tmp_path / "walking_conf")
@@ -749,4 +749,4 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     walking_config = OmegaConf.load(tmp_path / "walking_conf" / "walking.yaml")
     assert walking_config.trainer.max_steps == 1800
     assert walking_config.model.init_args.conditioning == "prefix"
-    assert walking_config.model.init_args.lambda_low_foot == 0.0
+    assert walking_config.model.init_args.lambda_low_foot == 4.0  # every folder's feet

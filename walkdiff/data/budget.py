@@ -45,13 +45,6 @@ class Budget:
         every label alike)."""
         return "adaln" if self.varied else "prefix"
 
-    @property
-    def low_foot(self) -> float:
-        """`model.lambda_low_foot` as written: on a varied folder x4 took skating as sampled from 2.77x
-        real to 1.59x (1.16x to 0.30x with `--fix-feet`) at the same FMD and recognition
-        (docs/training.md); on a walking folder it is not measured yet, so it stays off there."""
-        return 4.0 if self.varied else 0.0
-
 
 def root_travel(profile: SkeletonProfile, motion: Motion) -> float:
     """Body heights per second the clip's root moves along the ground (canonical axes: y up)."""
