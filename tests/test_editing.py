@@ -335,3 +335,32 @@ def test_the_smoothest_fill_is_the_one_that_does_not_hurry_to_meet_its_ends(xia_
     for order in ([raw, hurried, jittered], [hurried, jittered, raw], [jittered, raw, hurried]):
         picked = smoothest(np.stack(order), held, canonical.skeleton, 30.0)
         assert order[picked] is raw
+
+
+def test_bench_inbetween_fills_each_held_out_clip_with_its_own_content(tmp_path, monkeypatch):
+    """A model of several contents is measured on every one: each held-out clip's gap is filled with the
+    clip's own content label, and the report counts the windows of each."""
+    from test_training import tiny_evaluator
+
+    from walkdiff.bench.inbetween import HeldOut, bench_inbetween
+
+    root = tmp_path / "data"
+    synthetic.xia_like_folder(root, walk_clips=6, frames=240)  # walks and a run per style
+    ckpt = tiny.generator(root, epochs=2, data_options={"contents": "all"})
+    evaluator = tiny_evaluator(root, tmp_path / "evaluator.ckpt")
+    asked = []
+    request = HeldOut.request
+
+    def recorded(self, style, content, sampler, steps):
+        asked.append(content)
+        return request(self, style, content, sampler, steps)
+
+    monkeypatch.setattr(HeldOut, "request", recorded)
+    result = bench_inbetween(
+        ckpt, evaluator, tmp_path / "inbetween.json", gaps=(45,), sampler="ddim", steps=2, repeats=1,
+        resamples=20,
+    )  # fmt: skip
+    gap = result["gaps"]["45"]
+    assert set(gap["contents"]) == {"walk", "run"}, gap["contents"]
+    assert sum(gap["contents"].values()) == gap["windows"]
+    assert asked.count("run") >= gap["contents"]["run"] and "walk" in asked

@@ -23,7 +23,9 @@ clip's windows, beside how often it recognises real test windows' own styles.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -47,9 +49,19 @@ CONTEXT = 10  # frames of past context, as Harvey et al.
 METHODS = ("model", "interpolation", "zero_velocity")
 
 
+class HeldClip(NamedTuple):
+    """A held-out clip: its labels (the model's names) and its canonical motion."""
+
+    style: str
+    content: str
+    name: str
+    motion: Motion
+
+
 class HeldOut:
     """A generator with its held-out test clips (canonical, decoded from the data module's features) and
-    an evaluator scoring windows of them."""
+    an evaluator scoring windows of them. Each clip is filled or edited with its own content label: a
+    model of several contents is measured on every one of them, not as if all were its first."""
 
     def __init__(self, ckpt: str | Path, evaluator: str | Path, splits: tuple[str, ...] = ("test",)):
         from walkdiff.data.datamodule import MotionDataModule, data_settings
@@ -65,9 +77,11 @@ class HeldOut:
                 f"--split: expected test, val or test,val (held-out clips), got {','.join(splits)}"
             )
         test = [clip for split in splits for clip in data.split_features(split)]
-        styles = list(model.spec["styles"])
+        styles, contents = list(model.spec["styles"]), list(model.spec["contents"])
         self.clips = [
-            (styles[info.style], name, decode(features, self.skeleton, 1.0 / self.fps))
+            HeldClip(
+                styles[info.style], contents[info.content], name, decode(features, self.skeleton, 1.0 / self.fps)
+            )
             for info, name, features in test
         ]
         self.scorer = MotionScorer(load_evaluator(evaluator), self.skeleton, self.fps)
@@ -76,10 +90,12 @@ class HeldOut:
         self.eval_styles = list(self.scorer.spec["styles"])
         self.requests: dict = {}
 
-    def request(self, style: str, sampler: str, steps: int | None):
-        if style not in self.requests:
-            self.requests[style] = self.generator.request(style, sampler=sampler, steps=steps)
-        return self.requests[style]
+    def request(self, style: str, content: str, sampler: str, steps: int | None):
+        if (style, content) not in self.requests:
+            self.requests[style, content] = self.generator.request(
+                style, content=content, sampler=sampler, steps=steps
+            )
+        return self.requests[style, content]
 
     def recognised(self, windows: list[np.ndarray], styles: list[str]) -> np.ndarray:
         """(N,) whether the evaluator recognises each style in world position windows (W, J, 3)."""
@@ -271,8 +287,8 @@ def _gap(
     profile, generator = held.profile, held.generator
     windows = [
         (i, s)
-        for i, (_, _, clip) in enumerate(held.clips)
-        for s in gap_starts(clip.num_frames, gap, context, stride)
+        for i, clip in enumerate(held.clips)
+        for s in gap_starts(clip.motion.num_frames, gap, context, stride)
     ]
     # Each window filled `samples` times (seeds clip + 1000 k), each fill scored as a case of its own.
     cases = [(i, s, seed + i + 1000 * k) for k in range(samples) for i, s in windows]
@@ -283,10 +299,10 @@ def _gap(
     }
     styles, clips = [], []
     for i, s, drawn in progress(cases, desc=f"gap {gap}", unit="fill"):
-        style, _, real = held.clips[i]
+        style, content, _, real = held.clips[i]
         a = profile.to_file(real.slice(s - context, s))
         b = profile.to_file(real.slice(s + gap, s + gap + 1))
-        request = held.request(style, sampler, steps)
+        request = held.request(style, content, sampler, steps)
         made = generator.fill(
             request, a, b, gap, drawn, fill_only=True, fix_feet=fix_feet, candidates=candidates
         )
@@ -345,6 +361,7 @@ def _gap(
         "windows": len(windows),
         "cases": len(cases),
         "clips": len(set(clips.tolist())),
+        "contents": dict(Counter(held.clips[i].content for i, _ in windows)),  # windows of each label
         "real": {
             "style_acc": bootstrap(real_style.astype(float), clips, resamples, seed),
             "skate_ratio": round(float(real_skate[:, 1].sum() / max(real_skate[:, 0].sum(), 1)), 4),
@@ -360,12 +377,12 @@ def _timing(
     held: HeldOut, context, sampler, steps, repeats: int, seed: int, candidates: int, gap: int = 45
 ) -> dict:
     """Median seconds of a `gap`-frame fill (the API call, model loaded) on this machine's threads."""
-    style, _, real = max(held.clips, key=lambda c: c[2].num_frames)
+    style, content, _, real = max(held.clips, key=lambda c: c.motion.num_frames)
     if real.num_frames < context + 2:
         return {}
     a = held.profile.to_file(real.slice(real.num_frames - context - 1, real.num_frames - 1))
     b = held.profile.to_file(real.slice(real.num_frames - 1, real.num_frames))
-    request = held.request(style, sampler, steps)
+    request = held.request(style, content, sampler, steps)
     spent = []
     for _ in range(repeats):
         started = time.perf_counter()
@@ -395,7 +412,7 @@ def bench_edit(
     clips (each test clip edited into the next style of the model's list) beside real windows' own."""
     held = HeldOut(ckpt, evaluator, splits)
     styles = list(held.generator.styles)
-    clips = [(i, c) for i, c in enumerate(held.clips) if c[2].num_frames >= held.window]
+    clips = [(i, c) for i, c in enumerate(held.clips) if c.motion.num_frames >= held.window]
     stride = max(1, held.window // 2)
 
     def windows(motion: Motion) -> list[np.ndarray]:
@@ -403,7 +420,7 @@ def bench_edit(
         return [positions[s : s + held.window] for s in range(0, motion.num_frames - held.window + 1, stride)]
 
     real_w, real_s, real_c = [], [], []
-    for i, (style, _, real) in clips:
+    for i, (style, _, _, real) in clips:
         found = windows(real)
         real_w += found
         real_s += [style] * len(found)
@@ -417,9 +434,9 @@ def bench_edit(
     }  # fmt: skip
     for keep in keeps:
         made_w, made_s, made_c, errors, source_ok = [], [], [], [], []
-        for i, (style, _, real) in progress(clips, desc=f"edit {keep}", unit="clip"):
+        for i, (style, content, _, real) in progress(clips, desc=f"edit {keep}", unit="clip"):
             target = styles[(styles.index(style) + 1) % len(styles)]
-            request = held.request(target, sampler, steps)
+            request = held.request(target, content, sampler, steps)
             edited = held.generator.edited(request, held.profile.to_file(real), keep, seed + i)
             errors.append(edited.extra["kept_error"])
             found = windows(edited.take.canonical())
