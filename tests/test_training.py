@@ -538,6 +538,12 @@ def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_pa
     assert Path("abl/baseline/train.json").stat().st_mtime_ns == stamp
     table = (tmp_path / "abl" / "ablation.md").read_text()
     assert f"| `{other}` | other folder | other | 4 |" in table
+    # A suite's table names each row's config, even while one entry is done (entries run one at a time).
+    from walkdiff.bench.ablate import format_table
+
+    done = json.loads(Path("abl/ablation.json").read_text())
+    alone = format_table(done | {"variants": done["variants"][:1]})
+    assert "None" not in alone and f"| `{config}` | tiny | baseline | 4 |" in alone
     fit_args = json.loads(Path("abl/other/train.json").read_text())["fit_args"]
     assert fit_args[:2] == ["--model.lambda_adv", "0"]
     assert json.loads(Path("abl/other/train.json").read_text())["fit_args"][:2] == ["--model.lambda_adv", "0"]

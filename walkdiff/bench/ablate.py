@@ -403,7 +403,8 @@ def _cell(ratio: dict | None) -> str:
 def format_table(result: dict) -> str:
     """Markdown: one row a variant, each figure as a ratio to real [its 95% interval]."""
     labels = sorted({label for v in result["variants"] for label in v["turns"]})
-    configs = len({v["config"] for v in result["variants"]}) > 1  # a suite: one row a folder
+    # a suite (each variant names its config): one row a folder, the config in a column of its own
+    configs = result["config"] is None or len({v["config"] for v in result["variants"]}) > 1
     head = [
         *(["config"] if configs else []),
         "factor",
