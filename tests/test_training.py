@@ -546,6 +546,7 @@ def test_bench_ablate_trains_each_variant_once_and_tables_them(tiny_root, tmp_pa
     assert "None" not in alone and f"| `{config}` | tiny | baseline | 4 |" in alone
     fit_args = json.loads(Path("abl/other/train.json").read_text())["fit_args"]
     assert fit_args[:2] == ["--model.lambda_adv", "0"]
+    assert fit_args[fit_args.index("--trainer.max_time") + 1] == "null"  # the budget, never the clock
     assert json.loads(Path("abl/other/train.json").read_text())["fit_args"][:2] == ["--model.lambda_adv", "0"]
     # A grid naming a variant that does not exist, or a `from` that is not trained before it.
     grid.write_text("variants:\n  - {name: a, from: b}\n")

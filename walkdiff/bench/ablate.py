@@ -218,6 +218,11 @@ def _train(out_dir: Path, variant: dict, budget: int, evaluator: str, threads) -
         *fit,
         "--trainer.max_steps",
         str(budget),
+        # every variant trains its whole budget: a config's safety net, sized for its own steps on its
+        # own folder, would cut a bigger budget short on a busy machine (the table would then depend on
+        # the machine's speed)
+        "--trainer.max_time",
+        "null",
         "--trainer.logger.init_args.run_name",
         run_name,
     ]
