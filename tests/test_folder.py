@@ -739,7 +739,7 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     # The generator's batches hold 96 windows, the evaluator's 64.
     assert OmegaConf.create(config).data.init_args.batch_size == 96
     assert evaluator.data.init_args.batch_size == 64
-    # A varied folder's labels enter every layer of the denoiser (adaLN-Zero); a walking folder's a prefix.
+    # Every folder's labels enter every layer of the denoiser (adaLN-Zero).
     assert OmegaConf.create(config).model.init_args.conditioning == "adaln"
     assert OmegaConf.create(config).model.init_args.lambda_low_foot == 4.0  # feet the sample puts down stay
 
@@ -748,5 +748,5 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     assert "the generator 1,800 batches of 96 (all 2 contents travel (locomotion))" in text
     walking_config = OmegaConf.load(tmp_path / "walking_conf" / "walking.yaml")
     assert walking_config.trainer.max_steps == 1800
-    assert walking_config.model.init_args.conditioning == "prefix"
+    assert walking_config.model.init_args.conditioning == "adaln"
     assert walking_config.model.init_args.lambda_low_foot == 4.0  # every folder's feet

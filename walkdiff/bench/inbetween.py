@@ -78,10 +78,9 @@ class HeldOut:
             )
         test = [clip for split in splits for clip in data.split_features(split)]
         styles, contents = list(model.spec["styles"]), list(model.spec["contents"])
+        dt = 1.0 / self.fps
         self.clips = [
-            HeldClip(
-                styles[info.style], contents[info.content], name, decode(features, self.skeleton, 1.0 / self.fps)
-            )
+            HeldClip(styles[info.style], contents[info.content], name, decode(features, self.skeleton, dt))
             for info, name, features in test
         ]
         self.scorer = MotionScorer(load_evaluator(evaluator), self.skeleton, self.fps)

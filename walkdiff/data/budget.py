@@ -5,9 +5,7 @@ bar in about half its 1,800 batches on Xia walking, and a larger folder needs no
 (docs/training.md, "Time to the quality bar"). A varied folder, whose contents include one-off actions
 (contents whose root stays in place), gets twice the batches: on the disguised actions folder 3,600 took
 skating from 3.9x real to 1.9x and style from 0.60 to 0.77 of real (docs/training.md, "The quality
-suite"). Its labels also enter every layer of the denoiser (`model.conditioning: adaln`): on the same
-folder FMD 3.80x the floor, not 4.43x, and style 0.84 of real, not 0.77 (both scored with every label
-alike; with the test split's labels the adaLN model scores FMD 1.47x and style 0.93).
+suite").
 """
 
 from __future__ import annotations
@@ -37,13 +35,6 @@ class Budget:
     steps: int
     why: str
     varied: bool = False
-
-    @property
-    def conditioning(self) -> str:
-        """The denoiser's `model.conditioning` as written: adaLN took a varied folder's FMD from 4.43x the
-        floor to 3.80x, but a walking folder's from 1.43x to 1.85x (docs/training.md; both scored with
-        every label alike)."""
-        return "adaln" if self.varied else "prefix"
 
 
 def root_travel(profile: SkeletonProfile, motion: Motion) -> float:
