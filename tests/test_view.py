@@ -64,19 +64,23 @@ def test_the_page_shows_the_skeletons_in_a_headless_browser(clips, tmp_path):
             pytest.fail("walkdiff view ended without serving")
         png = tmp_path / "page.png"
         opened = time.monotonic()
-        browser = subprocess.run(
-            [
-                CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                "--no-first-run", "--disable-background-networking", "--disable-component-update",
-                "--disable-sync",
-                f"--user-data-dir={tmp_path / 'profile'}", "--window-size={},{}".format(*WINDOW),
-                "--virtual-time-budget=2500", f"--screenshot={png}", address[1],
-            ],
-            capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
-        assert png.exists(), browser.stderr[-2000:]
-        left, right = limb_pixels(png.read_bytes())
-        assert skeletons_shown(left, right), (left, right)
+        seen = []
+        # A busy machine can catch the limbs mid-update (fewer pixels of one side): up to three shots.
+        while len(seen) < 3 and not (seen and skeletons_shown(*seen[-1])):
+            png.unlink(missing_ok=True)
+            browser = subprocess.run(
+                [
+                    CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                    "--no-first-run", "--disable-background-networking", "--disable-component-update",
+                    "--disable-sync",
+                    f"--user-data-dir={tmp_path / 'profile'}", "--window-size={},{}".format(*WINDOW),
+                    "--virtual-time-budget=2500", f"--screenshot={png}", address[1],
+                ],
+                capture_output=True, text=True, timeout=120,
+            )  # fmt: skip
+            assert png.exists(), browser.stderr[-2000:]
+            seen.append(limb_pixels(png.read_bytes()))
+        assert skeletons_shown(*seen[-1]), seen
         shot = time.monotonic() - opened
         print(f"served {opened - started:.1f} s after start; page shot {shot:.1f} s after opening")
     finally:
