@@ -30,11 +30,10 @@ TRAVEL_SPEED, TRAVEL_STEP_SECONDS = 0.25, 0.25
 
 @dataclass(frozen=True)
 class Budget:
-    """The generator's batches and why; `varied`: the folder holds one-off actions beside locomotion."""
+    """The generator's batches and why."""
 
     steps: int
     why: str
-    varied: bool = False
 
 
 def root_travel(profile: SkeletonProfile, motion: Motion) -> float:
@@ -59,7 +58,6 @@ def generator_budget(groups: tuple[str, ...], contents: list[int], travel: np.nd
             VARIED_GENERATOR_STEPS,
             f"a varied folder: {len(still)} of its {len(groups)} contents stay in place (one-off actions: "
             f"{shown}), so twice the batches of a walking folder",
-            varied=True,
         )
     if len(groups) > 1:
         return Budget(GENERATOR_STEPS, f"all {len(groups)} contents travel (locomotion)")
