@@ -20,7 +20,8 @@ from walkdiff.motion.skeleton import Motion
 GENERATOR_STEPS, VARIED_GENERATOR_STEPS, EVALUATOR_STEPS = 1800, 3600, 1800
 # Windows per batch. The generator's 96 (the evaluator's 64): on the turns folder of docs/training.md
 # 1,800 batches of 96 hold every figure of the quality bar, where 1,800 of 64 missed it on skating, at
-# 1.44x the seconds per batch on both cores of a quiet machine (the issue's bound: 1.5x).
+# 1.44x to 1.65x the seconds per batch on both cores of a quiet machine (the issue's bound is 1.5x:
+# docs/training.md, "What a batch of today's recipe costs").
 BATCH_SIZE, GENERATOR_BATCH_SIZE = 64, 96
 # A content travels when its clips' root moves at least this many body heights a second (median over its
 # clips, along the ground, sampled every TRAVEL_STEP_SECONDS so standing sway does not add up). On Xia:
