@@ -126,12 +126,14 @@ def test_parse_style_ids_mixes_and_errors(model):
 
 
 def test_long_motion_has_no_seams_and_a_continuous_root(model):
+    # 64 clips: with 8 the share of 32 seam steps past the 5-95% band swings by +-4% between machines
+    # whose floating point differs, across the 10% the criterion allows.
     frames, window, overlap = 88, 24, 8
-    style = torch.tensor([0, 4] * 4)
-    content = torch.zeros(8, dtype=torch.long)
+    style = torch.tensor([0, 4] * 32)
+    content = torch.zeros(64, dtype=torch.long)
     generator = torch.Generator().manual_seed(0)
     x = generate_long(model, style, content, frames, Sampling("ddim", 3), generator, overlap, blend=0)
-    assert x.shape == (8, frames, model.spec["feature_dim"]) and torch.isfinite(x).all()
+    assert x.shape == (64, frames, model.spec["feature_dim"]) and torch.isfinite(x).all()
     seams = seam_steps(frames, window, overlap)  # steps from the last known frame of a window to a new one
     assert seams == [23, 39, 55, 71]
     assert seams_within_spread(joint_speeds(model, x), seams)
