@@ -728,7 +728,7 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     varied = folder("varied", {"01": "walk", "18": "jab", "22": "sidekick"})
     text = scan(varied, out=tmp_path / "varied_conf")
     assert (
-        "the generator 3,600 batches of 84 (a varied folder: 2 of its 3 contents stay in place "
+        "the generator 3,600 batches of 96 (a varied folder: 2 of its 3 contents stay in place "
         "(one-off actions: jab, sidekick), so twice the batches of a walking folder)"
     ) in text
     config = (tmp_path / "varied_conf" / "varied.yaml").read_text()
@@ -736,8 +736,8 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     assert "# 3,600 batches: a varied folder: 2 of its 3 contents stay in place" in config
     evaluator = OmegaConf.load(tmp_path / "varied_conf" / "evaluator_varied.yaml")
     assert evaluator.trainer.max_steps == 1800
-    # The generator's batches hold 84 windows, the evaluator's 64.
-    assert OmegaConf.create(config).data.init_args.batch_size == 84
+    # The generator's batches hold 96 windows (48 of them for the discriminator), the evaluator's 64.
+    assert OmegaConf.create(config).data.init_args.batch_size == 96
     assert evaluator.data.init_args.batch_size == 64
     # Every folder's labels enter every layer of the denoiser (adaLN-Zero).
     assert OmegaConf.create(config).model.init_args.conditioning == "adaln"
@@ -745,7 +745,7 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
 
     walking = folder("walking", {"01": "walk", "13": "run"})
     text = scan(walking, out=tmp_path / "walking_conf")
-    assert "the generator 1,800 batches of 84 (all 2 contents travel (locomotion))" in text
+    assert "the generator 1,800 batches of 96 (all 2 contents travel (locomotion))" in text
     walking_config = OmegaConf.load(tmp_path / "walking_conf" / "walking.yaml")
     assert walking_config.trainer.max_steps == 1800
     assert walking_config.model.init_args.conditioning == "adaln"

@@ -123,7 +123,7 @@ def test_scan_then_fit_sample_and_transfer_on_disguised_xia(disguised_folder, tm
     report = capsys.readouterr().out
     assert "root:      pelvis (static above it, folded: Root)" in report and "up +z" in report
     # The plan in batches, whatever the folder's size, and what it costs here (timed on a few batches).
-    assert "Budget: the evaluator 1,800 batches of 64 windows, the generator 1,800 batches of 84" in report
+    assert "Budget: the evaluator 1,800 batches of 64 windows, the generator 1,800 batches of 96" in report
     assert re.search(r"conf/studio.yaml: 1,800 batches x \d+\.\d\d s = ", report), report
     assert "units:     m" in report and "angry 6" in report
     generator = OmegaConf.load("conf/studio.yaml")

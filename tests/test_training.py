@@ -700,3 +700,28 @@ def test_adaln_conditioning_starts_blind_to_the_labels_then_learns_them_and_relo
 def test_an_unknown_conditioning_is_named_with_the_choices(tiny_root):
     with pytest.raises(WalkdiffError, match=r"model.conditioning: expected one of prefix, adaln, got 'film'"):
         StyledMotionDiffusion(datamodule(tiny_root).spec, **{**TINY, "conditioning": "film"})
+
+
+def test_the_discriminator_judges_only_its_share_of_the_windows(tiny_root):
+    """With discriminator_windows N, its step and the generator's adversarial term see N of the batch's
+    windows (the part that costs the same at any batch size); the denoiser's terms see them all."""
+    L.seed_everything(0)
+    dm = datamodule(tiny_root)
+    model = StyledMotionDiffusion(dm.spec, **{**TINY, "discriminator_windows": 3})
+    seen = []
+    model.discriminator.register_forward_hook(lambda module, args, out: seen.append(args[0].shape[0]))
+    dm.setup("fit")
+    model.profile = dm.profile
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["features"].shape[0] == 8
+    out, target, x0_hat, t = model.denoise(batch, cond_drop=0.0)
+    assert model.discriminator_loss(batch, x0_hat, t)["d"].isfinite()
+    losses = model.generator_losses(batch, out, target, x0_hat, t, adversarial=True)
+    assert seen == [3, 3, 3] and losses["adv"].isfinite() and losses["diffusion"].isfinite()
+    # The whole batch is judged by default, and a count below one is refused by name.
+    full = StyledMotionDiffusion(dm.spec, **TINY)
+    full.discriminator.register_forward_hook(lambda module, args, out: seen.append(args[0].shape[0]))
+    full.discriminator_loss(batch, x0_hat, t)
+    assert seen[3:] == [8, 8]
+    with pytest.raises(WalkdiffError, match=r"model.discriminator_windows: expected >= 1 or null, got 0"):
+        StyledMotionDiffusion(dm.spec, **{**TINY, "discriminator_windows": 0})

@@ -24,6 +24,7 @@ from walkdiff.common.progress import progress
 from walkdiff.data import laterality
 from walkdiff.data.budget import (
     BATCH_SIZE,
+    DISCRIMINATOR_WINDOWS,
     EVALUATOR_STEPS,
     GENERATOR_BATCH_SIZE,
     Budget,
@@ -124,15 +125,7 @@ def scan(
     validate = bool(splits["val"])
     texts = (
         _evaluator_config(name, folder, summary, data, validate),
-        _generator_config(
-            name,
-            folder,
-            summary,
-            data | _balance(source) | {"batch_size": GENERATOR_BATCH_SIZE},
-            source.groups[0],
-            budget,
-            validate,
-        ),
+        _generator_config(name, folder, summary, data | _balance(source), source.groups[0], budget, validate),
     )
     for path, text in zip(paths, texts):
         write_text(path, text)
@@ -565,7 +558,7 @@ def _generator_config(
         + (measured if validate else "")
         + _last_checkpoint()
         + (previews if validate else "")
-        + """\
+        + f"""\
 model:
   class_path: walkdiff.models.styled_ddpm.StyledMotionDiffusion
   init_args:
@@ -589,6 +582,7 @@ model:
     lambda_low_foot: 4.0   # skating as sampled 1.59x real, not 2.77x (actions), 0.16x, not 1.25x (turns)
     lambda_position: 1.0
     adv_warmup_batches: 250
+    discriminator_windows: {DISCRIMINATOR_WINDOWS}   # of {GENERATOR_BATCH_SIZE}: more windows, same s/batch
     cond_drop: 0.1
     lr: 1.0e-3
     lr_discriminator: 4.0e-4
@@ -596,5 +590,5 @@ model:
     grad_clip: 1.0
     ema_decay: 0.995
 """
-        + _data_section(data)
+        + _data_section(data | {"batch_size": GENERATOR_BATCH_SIZE})
     )

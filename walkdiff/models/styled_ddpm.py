@@ -110,6 +110,7 @@ class StyledMotionDiffusion(MotionModule):
         lambda_foot_velocity: float = 0.0,
         lambda_position: float = 0.0,
         adv_warmup_batches: int = 500,
+        discriminator_windows: int | None = None,  # N of a batch's windows go to D (cheaper); None: all
         cond_drop: float = 0.1,
         conditional_discriminator: bool = True,
         lr: float = 2e-4,
@@ -130,6 +131,10 @@ class StyledMotionDiffusion(MotionModule):
         if min_snr_gamma is not None and not min_snr_gamma > 0:
             raise WalkdiffError(
                 f"model.min_snr_gamma: expected a number > 0 (5 is usual) or null, got {min_snr_gamma}"
+            )
+        if discriminator_windows is not None and discriminator_windows < 1:
+            raise WalkdiffError(
+                f"model.discriminator_windows: expected >= 1 or null, got {discriminator_windows}"
             )
         if conditioning not in CONDITIONING:
             raise WalkdiffError(
@@ -284,8 +289,9 @@ class StyledMotionDiffusion(MotionModule):
                 feet_error = body.foot_velocity_error(velocity_hat, velocity).pow(2).sum(-1)
                 losses["foot_velocity"] = (weight * feet_error.mean(dim=(1, 2))).mean()
         if adversarial:
-            fake = self.discriminator(x0_hat, batch["style"], batch["content"])
-            losses["adv"] = (weight * 0.5 * (fake - 1).pow(2)).mean()
+            n = h.discriminator_windows or len(t)  # a random subset: batches come in random order
+            fake = self.discriminator(x0_hat[:n], batch["style"][:n], batch["content"][:n])
+            losses["adv"] = (weight[:n] * 0.5 * (fake - 1).pow(2)).mean()
         return losses
 
     def _diffusion_loss(self, out: torch.Tensor, target: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
@@ -316,9 +322,11 @@ class StyledMotionDiffusion(MotionModule):
     def discriminator_loss(
         self, batch: dict, x0_hat: torch.Tensor, t: torch.Tensor
     ) -> dict[str, torch.Tensor]:
-        weight = self.diffusion.alphas_cumprod[t]
-        real = self.discriminator(batch["features"], batch["style"], batch["content"])
-        fake = self.discriminator(x0_hat.detach(), batch["style"], batch["content"])
+        n = self.hparams.discriminator_windows or len(t)  # the windows the adversarial term sees
+        weight = self.diffusion.alphas_cumprod[t[:n]]
+        style, content = batch["style"][:n], batch["content"][:n]
+        real = self.discriminator(batch["features"][:n], style, content)
+        fake = self.discriminator(x0_hat[:n].detach(), style, content)
         loss = 0.5 * (real - 1).pow(2).mean() + (weight * 0.5 * fake.pow(2)).mean()
         return {"d": loss, "d_real": real.mean().detach(), "d_fake": fake.mean().detach()}
 
