@@ -715,6 +715,7 @@ def test_the_discriminator_judges_only_its_share_of_the_windows(tiny_root):
     batch = next(iter(dm.train_dataloader()))
     assert batch["features"].shape[0] == 8
     out, target, x0_hat, t = model.denoise(batch, cond_drop=0.0)
+    assert out.shape[0] == x0_hat.shape[0] == 8  # the denoiser's terms see the whole batch
     assert model.discriminator_loss(batch, x0_hat, t)["d"].isfinite()
     losses = model.generator_losses(batch, out, target, x0_hat, t, adversarial=True)
     assert seen == [3, 3, 3] and losses["adv"].isfinite() and losses["diffusion"].isfinite()

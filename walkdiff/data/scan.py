@@ -582,7 +582,7 @@ model:
     lambda_low_foot: 4.0   # skating as sampled 1.59x real, not 2.77x (actions), 0.16x, not 1.25x (turns)
     lambda_position: 1.0
     adv_warmup_batches: 250
-    discriminator_windows: {DISCRIMINATOR_WINDOWS}   # of {GENERATOR_BATCH_SIZE}: more windows, same s/batch
+    discriminator_windows: {DISCRIMINATOR_WINDOWS}   # of {GENERATOR_BATCH_SIZE}: D's cost fixed at any batch
     cond_drop: 0.1
     lr: 1.0e-3
     lr_discriminator: 4.0e-4

@@ -110,7 +110,7 @@ class StyledMotionDiffusion(MotionModule):
         lambda_foot_velocity: float = 0.0,
         lambda_position: float = 0.0,
         adv_warmup_batches: int = 500,
-        discriminator_windows: int | None = None,  # N of a batch's windows go to D (cheaper); None: all
+        discriminator_windows: int | None = None,  # N of a batch's windows judged by D; None: all
         cond_drop: float = 0.1,
         conditional_discriminator: bool = True,
         lr: float = 2e-4,
@@ -149,6 +149,9 @@ class StyledMotionDiffusion(MotionModule):
                                   dropout, jump_conditioning, style_code_dim, conditioning)  # fmt: skip
 
         self.denoiser = denoiser(dropout, jump_conditioning=bool(self.distilled_steps))
+        # The windows the discriminator judges, its step and the adversarial term alike: the first N of
+        # a batch (a random subset, batches being drawn in random order), or all.
+        self.judged = slice(None, discriminator_windows)
         self.discriminator = (
             MotionDiscriminator(
                 spec["feature_dim"], num_styles, num_contents, conditional=conditional_discriminator
@@ -289,9 +292,9 @@ class StyledMotionDiffusion(MotionModule):
                 feet_error = body.foot_velocity_error(velocity_hat, velocity).pow(2).sum(-1)
                 losses["foot_velocity"] = (weight * feet_error.mean(dim=(1, 2))).mean()
         if adversarial:
-            n = h.discriminator_windows or len(t)  # a random subset: batches come in random order
-            fake = self.discriminator(x0_hat[:n], batch["style"][:n], batch["content"][:n])
-            losses["adv"] = (weight[:n] * 0.5 * (fake - 1).pow(2)).mean()
+            j = self.judged
+            fake = self.discriminator(x0_hat[j], batch["style"][j], batch["content"][j])
+            losses["adv"] = (weight[j] * 0.5 * (fake - 1).pow(2)).mean()
         return losses
 
     def _diffusion_loss(self, out: torch.Tensor, target: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
@@ -322,11 +325,11 @@ class StyledMotionDiffusion(MotionModule):
     def discriminator_loss(
         self, batch: dict, x0_hat: torch.Tensor, t: torch.Tensor
     ) -> dict[str, torch.Tensor]:
-        n = self.hparams.discriminator_windows or len(t)  # the windows the adversarial term sees
-        weight = self.diffusion.alphas_cumprod[t[:n]]
-        style, content = batch["style"][:n], batch["content"][:n]
-        real = self.discriminator(batch["features"][:n], style, content)
-        fake = self.discriminator(x0_hat[:n].detach(), style, content)
+        j = self.judged
+        weight = self.diffusion.alphas_cumprod[t[j]]
+        style, content = batch["style"][j], batch["content"][j]
+        real = self.discriminator(batch["features"][j], style, content)
+        fake = self.discriminator(x0_hat[j].detach(), style, content)
         loss = 0.5 * (real - 1).pow(2).mean() + (weight * 0.5 * fake.pow(2)).mean()
         return {"d": loss, "d_real": real.mean().detach(), "d_fake": fake.mean().detach()}
 
