@@ -82,8 +82,8 @@ def test_inbetween_keeps_a_and_b_exactly_and_fills_the_gap(styled, clips):
     assert only.num_frames == 20
     np.testing.assert_allclose(only.positions, fill, atol=1e-6 * height)
 
-    # One fill by default; with candidates, several drawn together and the smoothest kept, with the same
-    # guarantees.
+    # One fill by default; with candidates, several drawn together and the most typical kept, with the
+    # same guarantees.
     four = model.inbetween(a, b, frames=20, style="old", seed=1, candidates=4, **FAST)
     assert result.settings["candidates"] == 1 and four.settings["candidates"] == 4
     assert four.extra["kept_error"] < TOLERANCE and not np.allclose(four.positions[40:60], fill)
@@ -309,14 +309,15 @@ def test_baselines_run_from_the_last_context_frame_to_the_keyframe():
     assert starts[0] == 10 and starts[-1] == 84 and max(np.diff(starts)) <= 5 and len(starts) == 16
 
 
-def test_the_smoothest_fill_is_the_one_that_does_not_hurry_to_meet_its_ends(xia_dir):
-    """Of fills that all hold A's context and B's keyframe, `smoothest` keeps the real walk over the same
-    walk hurried through the gap (slow, then fast: out of step until the end) and over a jittered one,
-    whatever order they come in (a real Xia walk, 10 + 45 + 1 frames at 30 fps)."""
+def test_the_most_typical_fill_is_the_one_in_the_middle_of_the_others(xia_dir):
+    """Of fills that all hold A's context and B's keyframe, `most_typical` keeps the one nearest the rest:
+    the real walk over the same walk running behind it through the gap, running ahead of it, and jittered
+    (the real one lies between them), whatever order they come in (a real Xia walk, 10 + 45 + 1 frames at
+    30 fps)."""
     from walkdiff.data.xia import PROFILE
     from walkdiff.motion.profile import SkeletonProfile
     from walkdiff.motion.representation import encode
-    from walkdiff.styled.editing import smoothest
+    from walkdiff.styled.editing import Constraint, most_typical
 
     motion = read_bvh(xia_dir / "neutral_01_000.bvh")
     profile = SkeletonProfile.detect(motion, PROFILE)
@@ -327,13 +328,16 @@ def test_the_smoothest_fill_is_the_one_that_does_not_hurry_to_meet_its_ends(xia_
     raw = encode(canonical, profile)[:56].astype(np.float64)
     held = np.zeros(56, bool)
     held[:10] = held[55:] = True
+    constraint = Constraint(raw, np.zeros(raw.shape, bool))
     u = np.linspace(0.0, 1.0, 46)[:-1]
-    hurried = raw.copy()
-    hurried[10:55] = raw[np.round(10 + 45 * u**2).astype(int)]
-    jittered = raw.copy()
+    behind, ahead, jittered = raw.copy(), raw.copy(), raw.copy()
+    behind[10:55] = raw[np.round(10 + 45 * u**1.5).astype(int)]
+    ahead[10:55] = raw[np.round(10 + 45 * u ** (1 / 1.5)).astype(int)]
     jittered[10:55] += np.random.default_rng(0).normal(0.0, 0.02, raw[10:55].shape)
-    for order in ([raw, hurried, jittered], [hurried, jittered, raw], [jittered, raw, hurried]):
-        picked = smoothest(np.stack(order), held, canonical.skeleton, 30.0)
+    fills = [raw, behind, ahead, jittered]
+    for turn in range(4):
+        order = fills[turn:] + fills[:turn]
+        picked = most_typical(np.stack(order), constraint, held, canonical.skeleton, 30.0)
         assert order[picked] is raw
 
 

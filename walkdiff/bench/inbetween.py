@@ -256,7 +256,7 @@ def bench_inbetween(
     `stride`: frames between the gap starts cut in one clip; `samples`: fills per gap (seeds), each scored
     on its own; `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's);
     `guide`: their reconstruction guidance (None: the API's); `candidates`: fills drawn for each, the
-    smoothest kept (the API's default)."""
+    most typical kept (the API's default)."""
     held = HeldOut(ckpt, evaluator, splits)
     held.generator.resample = resample
     if guide is not None:

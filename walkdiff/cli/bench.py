@@ -535,7 +535,7 @@ def add_inbetween(bench) -> None:
     b.add_argument("--samples", type=count(1), default=1, help="fills per gap, each scored (default 1)")
     b.add_argument(
         "--candidates", type=count(1), default=1,
-        help="fills drawn for each, the smoothest kept (default 1, as `walkdiff inbetween`)",
+        help="fills drawn for each, the most typical kept (default 1, as `walkdiff inbetween`)",
     )  # fmt: skip
     b.add_argument(
         "--guide",

@@ -28,7 +28,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--fill-only", action="store_true", help="write the fill alone (default: A, fill and B)")
     p.add_argument(
         "--candidates", type=count(1), default=1,
-        help="fills drawn together, the one that moves most smoothly kept (default 1, as the API)",
+        help="fills drawn together, the one nearest the others kept (default 1, as the API)",
     )  # fmt: skip
     edit_options(p)
     p.set_defaults(run=run_edit)

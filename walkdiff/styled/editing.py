@@ -332,17 +332,24 @@ def finish(
     return Motion(skeleton, rotations, positions, motion.frame_time)
 
 
-def smoothest(raws: np.ndarray, held: np.ndarray, skeleton: Skeleton, fps: float) -> int:
-    """Which of several raw fills (B, F, D) of one gap moves with the least acceleration (the squared
-    second differences of its joints' positions, seams smoothed as `finish` smooths them). Every fill
-    meets both ends, but one whose gait is out of step with B has to hurry or brake to meet it. On held-out
-    Xia gaps of 45 frames this measure ranked eight fills much as their distance to the real frames did
-    (docs/editing.md: what four bought in the bench)."""
-    costs = []
+def most_typical(
+    raws: np.ndarray, constraint: Constraint, held: np.ndarray, skeleton: Skeleton, fps: float
+) -> int:
+    """Which of several raw fills (B, F, D) of one gap lies nearest the others: the least summed distance
+    to them, a distance being the mean over the made frames of the L2 norm of all joints' world positions'
+    difference (L2P's form, Harvey et al. 2020), each fill decoded in place and its seams smoothed as
+    `finish` does. A minimum-Bayes-risk choice under the model's own spread: fills of a long gap differ
+    mostly in the gait's phase, and the one in the middle of them is nearer the real frames than a single
+    draw is (docs/editing.md, "Several fills, the most typical kept")."""
+    positions = []
     for raw in raws:
-        positions = motion_world_positions(decode(smooth_seams(raw, held), skeleton, 1.0 / fps))
-        costs.append(float(np.square(np.diff(positions, 2, axis=0)).sum()))
-    return int(np.argmin(costs))
+        position, heading = placement(raw, constraint)
+        motion = decode(smooth_seams(raw, held), skeleton, 1.0 / fps, position, heading)
+        positions.append(motion_world_positions(motion)[~held])
+    made = np.stack(positions)  # (B, made frames, J, 3)
+    count, frames = made.shape[:2]
+    apart = (made[:, None] - made[None]).reshape(count, count, frames, -1)
+    return int(np.argmin(np.linalg.norm(apart, axis=-1).mean(-1).sum(1)))
 
 
 SEAM_FRAMES = 8  # made frames a seam's mismatch is spread over, at most

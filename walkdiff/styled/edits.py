@@ -50,9 +50,8 @@ class Edits:
         held[:before] = held[before + frames : end] = True
         started = time.perf_counter()
         raws = self._masked(request, constraint, seed, candidates, self.guide)
-        raw = raws[
-            editing.smoothest(raws[:, :end], held[:end], model.skeleton, self.fps) if candidates > 1 else 0
-        ]
+        typical = editing.most_typical if candidates > 1 else lambda *_: 0
+        raw = raws[typical(raws[:, :end], constraint, held[:end], model.skeleton, self.fps)]
         if place:  # B turned and moved to where the fill ends
             clip_b = editing.turned(clip_b, profile, *editing.root_at(raw, constraint, before + frames))
         kept = _joined(

@@ -196,7 +196,7 @@ class StyledGenerator(Pipeline, Edits):
         clips). B stays where its file puts it, or with `place` where the fill brings it. The take is A,
         the fill and B as one clip (A and B exactly as given), or with `fill_only` the fill alone;
         `extra` holds the fill's frames and the kept frames' error in body heights. `candidates` fills
-        are drawn together and the one that moves most smoothly is kept (1: the first drawn)."""
+        are drawn together and the one nearest the others is kept (1: the first drawn)."""
         request = self.request(
             style, content, sampler, steps, eta, guidance, overlap, None, to, to_map, style_clips,
             match_clips=match_clips, unstyled=True,
