@@ -736,8 +736,9 @@ def test_scan_gives_a_varied_folder_twice_the_batches_and_says_why(xia_dir, tmp_
     assert "# 3,600 batches: a varied folder: 2 of its 3 contents stay in place" in config
     evaluator = OmegaConf.load(tmp_path / "varied_conf" / "evaluator_varied.yaml")
     assert evaluator.trainer.max_steps == 1800
-    # The generator's batches hold 96 windows (48 of them for the discriminator), the evaluator's 64.
+    # The generator's batches hold 96 windows (64 of them for the discriminator), the evaluator's 64.
     assert OmegaConf.create(config).data.init_args.batch_size == 96
+    assert OmegaConf.create(config).model.init_args.discriminator_windows == 64
     assert evaluator.data.init_args.batch_size == 64
     # Every folder's labels enter every layer of the denoiser (adaLN-Zero).
     assert OmegaConf.create(config).model.init_args.conditioning == "adaln"
