@@ -118,6 +118,15 @@ def test_cli_offers_every_sampler_the_samplers_know():
     assert options.SAMPLERS == diffusion.SAMPLERS
 
 
+def test_cli_fills_with_the_api_s_sampler_and_candidates():
+    from walkdiff.cli import options
+    from walkdiff.styled import edits
+
+    assert (options.FILL_SAMPLER, options.FILL_STEPS, options.FILL_CANDIDATES) == (
+        edits.FILL_SAMPLER, edits.FILL_STEPS, edits.CANDIDATES
+    )  # fmt: skip
+
+
 def test_cli_names_every_built_in_rig():
     from walkdiff.cli import options
     from walkdiff.retarget.rigs import RIGS

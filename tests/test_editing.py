@@ -82,11 +82,28 @@ def test_inbetween_keeps_a_and_b_exactly_and_fills_the_gap(styled, clips):
     assert only.num_frames == 20
     np.testing.assert_allclose(only.positions, fill, atol=1e-6 * height)
 
-    # One fill by default; with candidates, several drawn together and the most typical kept, with the
-    # same guarantees.
-    four = model.inbetween(a, b, frames=20, style="old", seed=1, candidates=4, **FAST)
-    assert result.settings["candidates"] == 1 and four.settings["candidates"] == 4
-    assert four.extra["kept_error"] < TOLERANCE and not np.allclose(four.positions[40:60], fill)
+    # Eight fills by default, drawn together and the most typical kept; one alone keeps the same guarantees.
+    one = model.inbetween(a, b, frames=20, style="old", seed=1, candidates=1, **FAST)
+    assert result.settings["candidates"] == 8 and one.settings["candidates"] == 1
+    assert one.extra["kept_error"] < TOLERANCE and not np.allclose(one.positions[40:60], fill)
+
+
+def test_inbetween_defaults_to_eight_fills_in_twenty_dpm_solver_steps(styled, clips, tmp_path):
+    model = walkdiff.load(styled)
+    a, b = clips
+    made = model.inbetween(a, b, frames=12, style="old", seed=2)
+    settings = made.settings
+    assert (settings["sampler"], settings["steps"], settings["candidates"]) == ("dpmpp", 20, 8)
+    # A sampler that takes steps, named without them, takes the fill's 20; DDPM every trained step.
+    assert model.inbetween(a, b, frames=12, sampler="ddim", candidates=1).settings["steps"] == 20
+    ddpm = model.inbetween(a, b, frames=12, sampler="ddpm", candidates=1).settings
+    assert (ddpm["sampler"], ddpm["steps"]) == ("ddpm", None)
+    # The command's defaults are the API's.
+    out = tmp_path / "default.bvh"
+    args = ["--frames", "12", "--out", str(out), "--ckpt", str(styled), "--style", "old", "--seed", "2"]
+    assert main(["inbetween", str(a), str(b), *args]) == 0
+    assert made.to_bvh(tmp_path / "api.bvh").read_text() == out.read_text()
+    assert json.loads(out.with_suffix(".json").read_text())["settings"] == settings
 
 
 def test_a_gap_longer_than_a_window_and_placing_b(styled, clips):

@@ -41,7 +41,7 @@ from walkdiff.motion.kinematics import forward_kinematics
 from walkdiff.motion.representation import decode, root_heading, yaw_matrix
 from walkdiff.motion.rotations import matrix_to_quaternion
 from walkdiff.motion.skeleton import Motion
-from walkdiff.styled.edits import CANDIDATES
+from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER, fill_steps
 from walkdiff.styled.pipeline import StyledGenerator
 
 GAPS = (5, 15, 30, 45)
@@ -241,7 +241,7 @@ def bench_inbetween(
     context: int = CONTEXT,
     stride: int = 5,
     seed: int = 0,
-    sampler: str = "ddpm",
+    sampler: str = FILL_SAMPLER,
     steps: int | None = None,
     resamples: int = 1000,
     repeats: int = 5,
@@ -256,7 +256,8 @@ def bench_inbetween(
     `stride`: frames between the gap starts cut in one clip; `samples`: fills per gap (seeds), each scored
     on its own; `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's);
     `guide`: their reconstruction guidance (None: the API's); `candidates`: fills drawn for each, the
-    most typical kept (the API's default)."""
+    most typical kept (the API's default); `steps`: none, the API's for the sampler (fill_steps)."""
+    steps = fill_steps(sampler, steps)
     held = HeldOut(ckpt, evaluator, splits)
     held.generator.resample = resample
     if guide is not None:

@@ -6,7 +6,15 @@ from __future__ import annotations
 import argparse
 import json
 
-from walkdiff.cli.options import SAMPLERS, frame_sampler_options, runtime_options, steering_options
+from walkdiff.cli.options import (
+    FILL_CANDIDATES,
+    FILL_SAMPLER_OPTIONS,
+    SAMPLERS,
+    frame_sampler_options,
+    runtime_options,
+    sampler_options,
+    steering_options,
+)
 from walkdiff.common.arguments import count, number
 from walkdiff.common.errors import WalkdiffError
 
@@ -500,15 +508,15 @@ def run_turns(args: argparse.Namespace) -> None:
     print("\n".join(format_turns(result)))
 
 
-def edit_bench_options(b: argparse.ArgumentParser) -> None:
-    """What `bench inbetween` and `bench edit` share."""
+def edit_bench_options(b: argparse.ArgumentParser, **sampler) -> None:
+    """What `bench inbetween` and `bench edit` share (`sampler`: sampler_options' defaults where the
+    command has its own)."""
     b.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint (its test split is used)")
     b.add_argument(
         "--evaluator", required=True, help="MotionEvaluator checkpoint (style recognition, skating)"
     )
     b.add_argument("--out", required=True, help="JSON file for the results")
-    b.add_argument("--sampler", choices=SAMPLERS, default="ddpm", help="sampler (default ddpm, as the API)")
-    b.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    sampler_options(b, with_eta=False, **sampler)
     b.add_argument("--seed", type=count(0), default=0)
     b.add_argument("--resamples", type=count(1), default=1000, help="bootstrap resamples (default 1000)")
     b.add_argument(
@@ -523,7 +531,7 @@ def add_inbetween(bench) -> None:
         "inbetween",
         help="in-betweening on held-out clips: L2P, L2Q, NPSS beside interpolation and zero velocity",
     )
-    edit_bench_options(b)
+    edit_bench_options(b, **FILL_SAMPLER_OPTIONS)
     b.add_argument("--gaps", default="5,15,30,45", help="gap lengths in frames (default 5,15,30,45)")
     b.add_argument("--context", type=count(1), default=10, help="frames of past context (default 10)")
     b.add_argument(
@@ -534,8 +542,8 @@ def add_inbetween(bench) -> None:
     )
     b.add_argument("--samples", type=count(1), default=1, help="fills per gap, each scored (default 1)")
     b.add_argument(
-        "--candidates", type=count(1), default=1,
-        help="fills drawn for each, the most typical kept (default 1, as `walkdiff inbetween`)",
+        "--candidates", type=count(1), default=FILL_CANDIDATES,
+        help=f"fills drawn for each, the most typical kept (default {FILL_CANDIDATES}, as `inbetween`)",
     )  # fmt: skip
     b.add_argument(
         "--guide",

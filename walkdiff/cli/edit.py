@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import argparse
 
-from walkdiff.cli.options import keyword_options, rig_options, styled_request_options
+from walkdiff.cli.options import (
+    FILL_CANDIDATES,
+    FILL_SAMPLER_OPTIONS,
+    keyword_options,
+    rig_options,
+    styled_request_options,
+)
 from walkdiff.common.arguments import count
 
 KEEP_HELP = (
@@ -27,10 +33,10 @@ def add_parsers(sub) -> None:
     )  # fmt: skip
     p.add_argument("--fill-only", action="store_true", help="write the fill alone (default: A, fill and B)")
     p.add_argument(
-        "--candidates", type=count(1), default=1,
-        help="fills drawn together, the one nearest the others kept (default 1, as the API)",
+        "--candidates", type=count(1), default=FILL_CANDIDATES,
+        help=f"fills drawn together, the most typical kept (default {FILL_CANDIDATES}; 1: the first drawn)",
     )  # fmt: skip
-    edit_options(p)
+    edit_options(p, **FILL_SAMPLER_OPTIONS)
     p.set_defaults(run=run_edit)
 
     p = sub.add_parser("edit", help="make anew what a clip does not keep (legs, upper body, root, joints)")
@@ -44,12 +50,13 @@ def add_parsers(sub) -> None:
     p.set_defaults(run=run_edit)
 
 
-def edit_options(p: argparse.ArgumentParser) -> None:
-    """What `inbetween` and `edit` share: the model, the output, the style, the sampler and the rig."""
+def edit_options(p: argparse.ArgumentParser, **sampler) -> None:
+    """What `inbetween` and `edit` share: the model, the output, the style, the sampler (`sampler`:
+    sampler_options' defaults where the command has its own) and the rig."""
     styled_request_options(
         p, "the BVH file to write (a JSON report is written beside it)",
         "or none: the model's own motion, led by what is kept",
-        "frames shared by neighbouring windows of a long edit (default: half a window)",
+        "frames shared by neighbouring windows of a long edit (default: half a window)", **sampler,
     )  # fmt: skip
     p.add_argument(
         "--no-fix-feet", dest="fix_feet", action="store_false",

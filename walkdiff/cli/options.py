@@ -17,11 +17,21 @@ MAX_GUIDANCE = 100.0
 RIG_NAMES = ("mixamo", "unreal", "smpl")
 # export.runtime.RUNTIMES, repeated for the same reason (a test keeps them equal).
 RUNTIMES = ("torch", "onnx")
+# styled.edits.FILL_SAMPLER, FILL_STEPS and CANDIDATES, the in-between's sampler, repeated for the same reason
+# (a test keeps them equal).
+FILL_SAMPLER, FILL_STEPS, FILL_CANDIDATES = "dpmpp", 20, 8
 GUIDANCE_HELP = f"classifier-free guidance weight in [0, {MAX_GUIDANCE:g}] (1: none; a few at most is useful)"
 SAMPLER_HELP = (
     "ddpm: ancestral, all T steps (default); ddim: DDIM over --steps; dpmpp: DPM-Solver++(2M), DDIM's ODE "
     "solved to second order, closer to DDPM at 10 steps for the same cost"
 )
+
+FILL_SAMPLER_HELP = (
+    f"dpmpp: DPM-Solver++(2M) over --steps (default, {FILL_STEPS} steps for a fill); ddpm: ancestral, all T "
+    "steps; ddim: DDIM over --steps"
+)
+# sampler_options' settings for the commands that fill a gap (`inbetween`, `bench inbetween`).
+FILL_SAMPLER_OPTIONS = {"default": FILL_SAMPLER, "help": FILL_SAMPLER_HELP, "steps": FILL_STEPS}
 
 FRAME_SAMPLER_HELP = (
     "per frame: ddpm, ancestral over all N trained steps (default); ddim over --steps of them (--eta its "
@@ -42,12 +52,14 @@ def sampler_options(
     eta: float | None = 0.0,
     guidance: bool = False,
     with_eta: bool = True,
+    steps: int = 10,
 ) -> None:
     """The sampler spec (diffusion.SamplerChoice) as options, the same names and checks on every command:
-    --sampler, --steps, --eta (`eta`: its default; None: the sampler's own) and, for a model with
-    classifier-free guidance, --guidance."""
+    --sampler, --steps (`steps`: what the command takes when none are given), --eta (`eta`: its default;
+    None: the sampler's own) and, for a model with classifier-free guidance, --guidance."""
     p.add_argument("--sampler", choices=SAMPLERS, default=default, help=help)
-    p.add_argument("--steps", type=count(1), default=None, help="DDIM / DPM-Solver++ steps (default 10)")
+    steps_help = f"DDIM / DPM-Solver++ steps (default {steps})"
+    p.add_argument("--steps", type=count(1), default=None, help=steps_help)
     if with_eta:
         eta_help = "DDIM noise (0: deterministic)" if eta == 0 else "DDIM noise (default 1)"
         p.add_argument("--eta", type=number(0, 1), default=eta, help=eta_help)
@@ -74,16 +86,17 @@ def style_options(p: argparse.ArgumentParser, more: str = "") -> None:
     )  # fmt: skip
 
 
-def styled_request_options(p: argparse.ArgumentParser, out: str, style: str, overlap: str) -> None:
+def styled_request_options(p: argparse.ArgumentParser, out: str, style: str, overlap: str, **sampler) -> None:
     """What every command of the styled generator asks for, in one order: the checkpoint, the output
     (`out`: its help), the style (`style`: what else --style takes), content, seed, the sampler with
-    guidance, and the frames neighbouring windows share (`overlap`: its help)."""
+    guidance (`sampler`: sampler_options' defaults where a command has its own), and the frames
+    neighbouring windows share (`overlap`: its help)."""
     p.add_argument("--ckpt", required=True, help="StyledMotionDiffusion checkpoint")
     p.add_argument("--out", required=True, help=out)
     style_options(p, style)
     p.add_argument("--content", default="walk", help="content group (default walk)")
     p.add_argument("--seed", type=count(0), default=0)
-    sampler_options(p, guidance=True)
+    sampler_options(p, guidance=True, **sampler)
     p.add_argument("--overlap", type=count(0), default=None, help=overlap)
 
 

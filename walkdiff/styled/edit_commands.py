@@ -11,7 +11,7 @@ from walkdiff.common.errors import WalkdiffError, command
 from walkdiff.common.files import check_free, output_set, write_json
 from walkdiff.models.pipeline import Generated, specs_first
 from walkdiff.motion.bvh import write_bvh
-from walkdiff.styled.edits import CANDIDATES
+from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER, fill_steps
 from walkdiff.styled.pipeline import StyledGenerator
 
 
@@ -43,7 +43,8 @@ def inbetween(
 ) -> dict:
     """`walkdiff inbetween`: A, a fill of `frames` frames and B as `out` (or the fill alone), and
     `out`.json saying how it was made."""
-    request = specs_first(request)
+    sampler = request.setdefault("sampler", FILL_SAMPLER)
+    request = specs_first(request | {"steps": fill_steps(sampler, request.get("steps"))})
     out, report = _outputs(out, overwrite)
     generator = StyledGenerator.load(ckpt, device)
     request = generator.request(style, unstyled=True, **request)

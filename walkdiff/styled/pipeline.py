@@ -39,7 +39,7 @@ from walkdiff.motion.representation import FeatureLayout, decode, encode, start_
 from walkdiff.motion.skeleton import Motion
 from walkdiff.retarget.take import Take
 from walkdiff.retarget.target_rig import TargetRig
-from walkdiff.styled.edits import CANDIDATES, Edits
+from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER, Edits, fill_steps
 from walkdiff.styled.generation import (
     Sampling,
     check_finite,
@@ -179,7 +179,7 @@ class StyledGenerator(Pipeline, Edits):
         fill_only: bool = False,
         content: str = "walk",
         seed: int = 0,
-        sampler: str | SamplerChoice | dict = "ddpm",
+        sampler: str | SamplerChoice | dict = FILL_SAMPLER,
         steps: int | None = None,
         eta: float = 0.0,
         guidance: float = 1.0,
@@ -196,7 +196,9 @@ class StyledGenerator(Pipeline, Edits):
         clips). B stays where its file puts it, or with `place` where the fill brings it. The take is A,
         the fill and B as one clip (A and B exactly as given), or with `fill_only` the fill alone;
         `extra` holds the fill's frames and the kept frames' error in body heights. `candidates` fills
-        are drawn together and the one nearest the others is kept (1: the first drawn)."""
+        are drawn together and the most typical is kept (1: the first drawn). A sampler named without
+        `steps` takes FILL_STEPS (20) here: DPM-Solver++ over 20 steps is the default."""
+        steps = fill_steps(sampler, steps)
         request = self.request(
             style, content, sampler, steps, eta, guidance, overlap, None, to, to_map, style_clips,
             match_clips=match_clips, unstyled=True,
