@@ -39,7 +39,9 @@ SAMPLE_METRICS = ("style_acc", "fmd", "kid", "diversity", "skate_ratio", "jitter
 TRANSFER_METRICS = ("target_style_acc", "content_kept", "content_distance", "fmd", "kid", "skate_ratio")
 
 
-def _clips_of_raw(scorer: ClipScorer, raw: torch.Tensor, styles: list[str], content: str | None, name: str):
+def clips_of_raw(scorer: ClipScorer, raw: torch.Tensor, styles: list[str], content: str | None, name: str):
+    """Raw feature windows (B, F, D) as Clips of world positions, what the scorer scores, named
+    `name`/index and labelled with `styles` (one each) and `content`."""
     positions = scorer.scorer.positions(raw).numpy()
     return [
         Clip(f"{name}/{i}", p, style, content)
@@ -53,14 +55,30 @@ def _sample_row(scorer: ClipScorer, model, samples: int, seed: int, batch: int, 
     generator = torch.Generator(device=model.device).manual_seed(seed)
     windows = generate_windows(model, labels, generator, batch, **sampling)
     styles = [model.spec["styles"][int(s)] for s in windows.style]
-    clips = _clips_of_raw(scorer, windows.raw, styles, None, "sample")
+    clips = clips_of_raw(scorer, windows.raw, styles, None, "sample")
     for clip, c in zip(clips, windows.content, strict=True):
         clip.content = contents[int(c)]
     scored = scorer.windows(clips)
     return scorer.statistics(scored, scorer.recognition(scored)).bootstrap(bootstrap, seed)
 
 
-def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.Tensor], strength: float,
+def held_out_clips(scorer: ClipScorer, styles=None) -> tuple[list[Clip], list[torch.Tensor]]:
+    """The real test clips at least a window long (of `styles` only, where given), as Clips of positions
+    (what is scored) and as raw features (what restyle takes), in the same order."""
+    test = [
+        (info, features)
+        for info, _, features in scorer.data.split_features("test")
+        if features.shape[0] >= scorer.window and (styles is None or scorer.styles[info.style] in styles)
+    ]
+    sources = [
+        Clip(f"test/{i}", scorer.scorer.positions(torch.from_numpy(f)[None])[0].numpy(),
+             scorer.styles[info.style], scorer.data.source.groups[info.content])
+        for i, (info, f) in enumerate(test)
+    ]  # fmt: skip
+    return sources, [torch.from_numpy(f) for _, f in test]
+
+
+def restyled_clips(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.Tensor], strength: float,
                keep: bool, seed: int, to: dict[str, torch.Tensor] | None = None,
                sampling=None, match: dict | None = None,
                ) -> tuple[list[Clip], list[Clip], list[str]]:  # fmt: skip
@@ -89,7 +107,7 @@ def _transfers(scorer: ClipScorer, model, sources: list[Clip], raws: list[torch.
         if match is not None:  # as `transfer` makes them: feet pinned where statistics are matched
             restyled = fix_feet_features(restyled, model.profile, model.spec["fps"], model.floor_heights)
         restyled = torch.from_numpy(restyled)
-        outputs += _clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
+        outputs += clips_of_raw(scorer, restyled, names, None, f"{source.name}->")
         paired += [source] * len(target)
         targets += names
     return outputs, paired, targets
@@ -129,23 +147,12 @@ def bench_protocol(
         bootstrap, seed
     )
 
-    # Transfer: the real test clips as features (what restyle takes) and as positions (what is scored).
-    test = [
-        (info, features)
-        for info, _, features in scorer.data.split_features("test")
-        if features.shape[0] >= scorer.window
-    ]
-    sources = [
-        Clip(f"test/{i}", scorer.scorer.positions(torch.from_numpy(f)[None])[0].numpy(),
-             scorer.styles[info.style], scorer.data.source.groups[info.content])
-        for i, (info, f) in enumerate(test)
-    ]  # fmt: skip
-    raws = [torch.from_numpy(f) for _, f in test]
+    sources, raws = held_out_clips(scorer)  # transfer's sources
     transfer: dict[str, dict] = {}
     paired, targets = None, None
     for strength in strengths:
         for keep in (False, True):
-            outputs, paired, targets = _transfers(scorer, model, sources, raws, strength, keep, seed)
+            outputs, paired, targets = restyled_clips(scorer, model, sources, raws, strength, keep, seed)
             name = f"transfer {strength:g}" + (", keep trajectory" if keep else "")
             transfer[name] = transfer_row(scorer, outputs, paired, bootstrap, seed)
     real = real_targets(scorer, targets, paired)
@@ -182,7 +189,7 @@ def bench_protocol(
     return result
 
 
-def _table(rows: dict[str, dict], metrics: tuple[str, ...], verdicts: dict | None = None) -> list[str]:
+def metric_table(rows: dict[str, dict], metrics: tuple[str, ...], verdicts: dict | None = None) -> list[str]:
     head = "| | " + " | ".join(METRICS[m][0] for m in metrics) + (" | style transfer |" if verdicts else " |")
     lines = [head, "|---|" + "---:|" * len(metrics) + ("---|" if verdicts else "")]
     for name, row in rows.items():
@@ -208,11 +215,11 @@ def format_protocol(result: dict) -> str:
         "",
         "## Sampling",
         "",
-        *_table(result["sampling"], SAMPLE_METRICS),
+        *metric_table(result["sampling"], SAMPLE_METRICS),
         "",
         "## Style transfer",
         "",
-        *_table(result["transfer"], TRANSFER_METRICS, result["verdicts"]),
+        *metric_table(result["transfer"], TRANSFER_METRICS, result["verdicts"]),
         "",
         "A style transfer must recognise the target style at least 80% as often as real clips of that "
         "style do and more often than the unchanged source, keep the source's content in 95% of windows, "

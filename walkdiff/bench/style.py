@@ -27,7 +27,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from walkdiff.bench.protocol import TRANSFER_METRICS, _clips_of_raw, _table, _transfers
+from walkdiff.bench.protocol import (
+    TRANSFER_METRICS,
+    clips_of_raw,
+    held_out_clips,
+    metric_table,
+    restyled_clips,
+)
 from walkdiff.bench.style_time import encoding_speed, transitions
 from walkdiff.common.checkpoints import read_checkpoint
 from walkdiff.common.errors import WalkdiffError
@@ -35,7 +41,7 @@ from walkdiff.common.files import output_folder, write_json, write_text
 from walkdiff.common.progress import progress, step_hook
 from walkdiff.data.datamodule import data_settings
 from walkdiff.diffusion.samplers import DEFAULT_STEPS
-from walkdiff.evaluation.clips import Clip, ClipScorer
+from walkdiff.evaluation.clips import ClipScorer
 from walkdiff.evaluation.score import format_summary
 from walkdiff.evaluation.scorer import WindowSet, window_set
 from walkdiff.evaluation.transfer import real_targets, transfer_baselines, transfer_row
@@ -304,22 +310,12 @@ def _unseen_transfer(run: Run, model, labels, means: dict[str, torch.Tensor],
     """The real test clips of the training styles restyled to each left-out style (the mean code and
     statistics of its examples), beside the code alone, the ceiling and the baselines."""
     scorer = run.scorer
-    test = [
-        (info, features)
-        for info, _, features in scorer.data.split_features("test")
-        if scorer.styles[info.style] in training and features.shape[0] >= scorer.window
-    ]
-    if not test:
+    sources, raws = held_out_clips(scorer, training)
+    if not sources:
         raise WalkdiffError(
             f"the evaluator's test split has no clip of the training styles ({', '.join(training)}) at least "
             f"{scorer.window} frames long to restyle"
         )
-    sources = [
-        Clip(f"test/{i}", scorer.scorer.positions(torch.from_numpy(f)[None])[0].numpy(),
-             scorer.styles[info.style], scorer.data.source.groups[info.content])
-        for i, (info, f) in enumerate(test)
-    ]  # fmt: skip
-    raws = [torch.from_numpy(f) for _, f in test]
     near = {style: nearest(code) for style, code in means.items()}
     settings = {f"{EXAMPLES} (mean code)": (model, means, matches), CODE_ALONE: (model, means, None)}
     if labels is not None:
@@ -330,7 +326,7 @@ def _unseen_transfer(run: Run, model, labels, means: dict[str, torch.Tensor],
     rows, paired, targets = {}, [], []
     for name, (maker, to, match) in settings.items():
         to = {style: value.to(maker.device) for style, value in to.items()}
-        outputs, paired, targets = _transfers(
+        outputs, paired, targets = restyled_clips(
             against, maker, sources, raws, STRENGTH, False, run.seed, to, run.sampling, match
         )
         rows[name] = transfer_row(against, outputs, paired, run.bootstrap, run.seed)
@@ -413,7 +409,7 @@ def _sample_row(run: Run, model, inputs: torch.Tensor, targets: list[str], score
                 match=None if match is None else match.rows(i, i + size),
             )  # fmt: skip
             raws.append(torch.from_numpy(_made(model, x, match)))
-    clips = _clips_of_raw(scorer, torch.cat(raws), targets, None, "sample")
+    clips = clips_of_raw(scorer, torch.cat(raws), targets, None, "sample")
     for clip, c in zip(clips, content, strict=True):
         clip.content = contents[int(c)]
     scored = scorer.windows(clips)
@@ -525,7 +521,7 @@ def format_style(result: dict) -> str:
         f"{sum(map(len, seen['example_clips'].values()))} real test clips of {', '.join(seen['styles'])} as "
         f"examples; {seen['windows']} windows per row.",
         "",
-        *_table(seen["rows"], SAMPLE_METRICS),
+        *metric_table(seen["rows"], SAMPLE_METRICS),
         "",
         *_per_style_table(seen["per_style_acc"]),
         "",
@@ -534,7 +530,12 @@ def format_style(result: dict) -> str:
     versus = result["seen_vs_labels"]
     if versus is not None:
         lines += ["## Seen styles against the label-only model", "", f"`{result['labels_ckpt']}`", ""]
-        lines += [*_table(versus["rows"], SAMPLE_METRICS), "", *_per_style_table(versus["per_style_acc"]), ""]
+        lines += [
+            *metric_table(versus["rows"], SAMPLE_METRICS),
+            "",
+            *_per_style_table(versus["per_style_acc"]),
+            "",
+        ]
         lines += _criteria(versus["criteria"])
     timeline, encoding = result["transitions"], result["encoding"]
     lines += [
@@ -564,14 +565,14 @@ def format_style(result: dict) -> str:
             "",
             f"### Sampling ({sampling['windows']} windows per row)",
             "",
-            *_table(sampling["rows"], SAMPLE_METRICS),
+            *metric_table(sampling["rows"], SAMPLE_METRICS),
             "",
             *_per_style_table(sampling["per_style_acc"]),
             "",
             f"### Transfer ({transfer['sources']} real test clips of the training styles, each to every "
             f"unseen style at strength {transfer['strength']:g}: {transfer['pairs']} outputs per row)",
             "",
-            *_table(transfer["rows"], TRANSFER_METRICS),
+            *metric_table(transfer["rows"], TRANSFER_METRICS),
             "",
             *_per_style_table(transfer["per_style_acc"]),
             "",

@@ -20,7 +20,7 @@ import time
 import numpy as np
 import torch
 
-from walkdiff.bench.protocol import _clips_of_raw
+from walkdiff.bench.protocol import clips_of_raw
 from walkdiff.evaluation.clips import ClipScorer
 from walkdiff.models.style_labels import parse_timeline
 from walkdiff.motion.bvh import read_bvh
@@ -84,7 +84,7 @@ def _timelines(scorer, generator, styles, sampling, seed, clips, segment, transi
 
 def _inside_recognition(scorer: ClipScorer, model, x: torch.Tensor, keys, segment: float, transition: float):
     raw = torch.from_numpy(model.to_raw(x, True))
-    clips = _clips_of_raw(scorer, raw, [k[0] for k in keys], None, "timeline")
+    clips = clips_of_raw(scorer, raw, [k[0] for k in keys], None, "timeline")
     window, fps = scorer.window, scorer.fps
     starts, labels = [], []
     for names in keys:

@@ -86,7 +86,7 @@ def read_wav(path: str | Path) -> tuple[np.ndarray, int]:
     return samples.mean(axis=1), int(rate)
 
 
-def _rate_for(rate: int, fps: float) -> int:
+def frame_aligned_rate(rate: int, fps: float) -> int:
     """A sample rate at which one motion frame is a whole number of samples (the mel hop)."""
     return rate if (rate / fps).is_integer() else int(round(rate / fps) * fps)
 
@@ -99,7 +99,7 @@ def log_mel(samples: np.ndarray, rate: int, fps: float, bands: int = 27) -> np.n
     """
     import librosa
 
-    target = _rate_for(rate, fps)
+    target = frame_aligned_rate(rate, fps)
     if target != rate:
         samples = librosa.resample(samples, orig_sr=rate, target_sr=target)
     hop = int(target / fps)
@@ -116,7 +116,7 @@ def samples_per_frame(rate: int, fps: float, where: str) -> int:
     if not (rate / fps).is_integer():
         raise WalkdiffError(
             f"{where}: {rate} Hz is not a whole number of samples per frame at {fps:g} fps; streaming needs "
-            f"a rate that is (e.g. {_rate_for(rate, fps)} Hz): resample the audio"
+            f"a rate that is (e.g. {frame_aligned_rate(rate, fps)} Hz): resample the audio"
         )
     return int(rate / fps)
 

@@ -171,11 +171,11 @@ def _walker_terms(model) -> dict:
 
 
 def _gesture_terms(model) -> dict:
-    from walkdiff.data.speech import LOG_FLOOR, _rate_for
+    from walkdiff.data.speech import LOG_FLOOR, frame_aligned_rate
 
     spec, neutral, skeleton = model.spec, model.neutral, model.skeleton
     rate = spec.get("sample_rate")
-    hop = None if rate is None else int(_rate_for(rate, spec["fps"]) / spec["fps"])
+    hop = None if rate is None else int(frame_aligned_rate(rate, spec["fps"]) / spec["fps"])
     return {
         "audio": {
             "sample_rate": rate,

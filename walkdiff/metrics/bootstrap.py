@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 from torchmetrics.image.kid import poly_kernel
 
-from walkdiff.metrics.distribution import _random_pairs
+from walkdiff.metrics.distribution import random_pairs
 from walkdiff.metrics.protocol import BOUNDS, PROPORTION
 
 KERNEL_CHUNK = 2048  # windows per block of the kernel matrix
@@ -161,7 +161,7 @@ class ClipStatistics:
 
         # Diversity as `metrics.Diversity` draws it: 200 random pairs of the resample's windows.
         rows = self._rows(weights.long())
-        first, second = _random_pairs(len(rows), 200, torch.Generator().manual_seed(seed))
+        first, second = random_pairs(len(rows), 200, torch.Generator().manual_seed(seed))
         values["diversity"] = float(
             (self.features[rows[first]] - self.features[rows[second]]).norm(dim=1).mean()
         )

@@ -74,7 +74,7 @@ class FrechetMotionDistance(FrechetInceptionDistance):
         super().update(features, real)
 
 
-def _random_pairs(n: int, num_pairs: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def random_pairs(n: int, num_pairs: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
     """Indices of ``num_pairs`` random pairs of two different samples out of ``n``, drawn with replacement."""
     first = torch.randint(n, (num_pairs,), generator=generator)
     # An offset in [1, n) makes the partner uniform over the other n - 1 samples: never a sample with itself.
@@ -115,7 +115,7 @@ class Diversity(Metric):
         if len(features) < 2:
             raise WalkdiffError(f"Diversity needs at least 2 samples, got {len(features)}")
         generator = torch.Generator().manual_seed(self.seed)
-        first, second = _random_pairs(len(features), self.num_pairs, generator)
+        first, second = random_pairs(len(features), self.num_pairs, generator)
         return (features[first] - features[second]).norm(dim=1).mean()
 
 
@@ -157,7 +157,7 @@ class Multimodality(Metric):
             members = features[labels == label]
             if len(members) < 2:
                 continue
-            first, second = _random_pairs(len(members), self.num_pairs, generator)
+            first, second = random_pairs(len(members), self.num_pairs, generator)
             per_class.append((members[first] - members[second]).norm(dim=1).mean())
         if not per_class:
             raise WalkdiffError("Multimodality needs a class with at least 2 samples, got none")
