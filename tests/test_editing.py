@@ -11,6 +11,7 @@ import pytest
 import synthetic
 import tiny
 import torch
+from PIL import Image
 
 import walkdiff
 from walkdiff.bench.inbetween import gap_starts, interpolated, zero_velocity
@@ -220,15 +221,42 @@ def test_commands_write_what_the_api_makes(styled, clips, tmp_path):
     assert main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(out), *args]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["fill_frames"] == [40, 52] and report["kept_error_body_heights"] < TOLERANCE
+    # The previews show the input (A, A's last pose held over the gap, B) beside the result.
+    assert out.with_suffix(".gif").stat().st_size > 0 and out.with_suffix(".mp4").stat().st_size > 0
+    assert report["preview"]["of_seconds"] == round(92 / 30, 3)  # 40 + 12 + 40 frames at 30 fps
+    with Image.open(out.with_suffix(".gif")) as gif:
+        assert gif.size[0] == 2 * 320  # two panels
     api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, **FAST)
     assert api.to_bvh(tmp_path / "api.bvh").read_text() == out.read_text()
     four = tmp_path / "four.bvh"
     assert (
-        main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(four), "--candidates", "4", *args])
+        main(
+            [
+                "inbetween",
+                str(a),
+                str(b),
+                "--frames",
+                "12",
+                "--out",
+                str(four),
+                "--candidates",
+                "4",
+                "--no-gif",
+                *args,
+            ]
+        )
         == 0
     )
     api = walkdiff.load(styled).inbetween(a, b, frames=12, style="old", seed=2, candidates=4, **FAST)
     assert api.to_bvh(tmp_path / "api_four.bvh").read_text() == four.read_text() != out.read_text()
+    assert (
+        not four.with_suffix(".gif").exists()
+        and json.loads(four.with_suffix(".json").read_text())["preview"] is None
+    )
+    held = api.extra["source"].motion  # the input as one take: A, the gap held at A's last pose, B
+    assert held.num_frames == 92 and np.array_equal(
+        held.rotations[40:52], held.rotations[39:40].repeat(12, 0)
+    )
     assert (
         main(["inbetween", str(a), str(b), "--frames", "12", "--out", str(out), *args]) == 1
     )  # no overwrite
@@ -242,7 +270,10 @@ def test_commands_write_what_the_api_makes(styled, clips, tmp_path):
 
     edited = tmp_path / "edited.bvh"
     assert main(["edit", str(a), "--keep", "Hips", "--out", str(edited), *args]) == 0
-    assert read_bvh(edited).num_frames == 40
+    assert read_bvh(edited).num_frames == 40 and edited.with_suffix(".gif").exists()
+    (tmp_path / "taken.gif").write_bytes(b"")  # a preview in the way is refused before any work, as the BVH
+    taken = tmp_path / "taken.bvh"
+    assert main(["edit", str(a), "--keep", "Hips", "--out", str(taken), *args]) == 1 and not taken.exists()
 
 
 # ---------------------------------------------------------------- the machinery on its own

@@ -9,6 +9,7 @@ from walkdiff.cli.options import (
     FILL_CANDIDATES,
     FILL_SAMPLER_OPTIONS,
     keyword_options,
+    preview_options,
     rig_options,
     styled_request_options,
 )
@@ -62,6 +63,7 @@ def edit_options(p: argparse.ArgumentParser, **sampler) -> None:
         "--no-fix-feet", dest="fix_feet", action="store_false",
         help="leave the made feet as sampled (default: pinned during contacts, the kept ones held)",
     )  # fmt: skip
+    preview_options(p, "skip the GIF and MP4 preview (the input beside the result)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     rig_options(p)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 
 from walkdiff.cli.options import (
-    PREVIEW_HELP,
     keyword_options,
+    preview_options,
     rig_options,
     styled_request_options,
 )
@@ -61,8 +61,7 @@ def sampling_options(p: argparse.ArgumentParser) -> None:
         "--no-ground", dest="ground", action="store_false",
         help="keep the height as sampled (default: planted feet lifted or lowered onto the floor)",
     )  # fmt: skip
-    p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF previews")
-    p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
+    preview_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     rig_options(p)

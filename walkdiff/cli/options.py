@@ -67,6 +67,12 @@ def sampler_options(
         p.add_argument("--guidance", type=number(0, MAX_GUIDANCE), default=1.0, help=GUIDANCE_HELP)
 
 
+def preview_options(p: argparse.ArgumentParser, gif_help: str = "skip the GIF and MP4 previews") -> None:
+    """--no-gif and --preview-seconds, the same on every command that writes a preview."""
+    p.add_argument("--no-gif", dest="gif", action="store_false", help=gif_help)
+    p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
+
+
 def style_options(p: argparse.ArgumentParser, more: str = "") -> None:
     """The style of a styled generator's request (models.style_spec.Style) as options: --style,
     --style-clip and --match-clips, the same on `sample`, `transfer`, `inbetween` and `edit`."""

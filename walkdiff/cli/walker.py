@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from walkdiff.cli.options import (
-    PREVIEW_HELP,
     frame_sampler_options,
+    preview_options,
     rig_options,
     runtime_options,
     walker_clip_options,
@@ -40,8 +40,7 @@ def add_walk(sub) -> None:
     )
     p.add_argument("--seed", type=count(0), default=0)
     frame_sampler_options(p)
-    p.add_argument("--no-gif", dest="gif", action="store_false", help="skip the GIF preview")
-    p.add_argument("--preview-seconds", type=number(0, above=True), default=20.0, help=PREVIEW_HELP)
+    preview_options(p, "skip the GIF and MP4 preview")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument(
         "--stream", action="store_true",

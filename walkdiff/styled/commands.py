@@ -25,7 +25,7 @@ from walkdiff.styled.generation import short_note
 from walkdiff.styled.pipeline import StyledGenerator, check_sample_size
 
 
-def _write_clip(
+def write_clip(
     path: Path, take: Take, title: str, cap: PreviewCap | None, others: tuple[tuple[Take, str], ...] = ()
 ) -> None:
     """A clip as BVH on its skeleton (the training files' or the --to rig's); the GIF and MP4 previews
@@ -92,7 +92,7 @@ def sample(
     started = time.perf_counter()
     with output_set(out):
         for path, take in zip(bvh, result.takes, strict=True):
-            _write_clip(path, take, f"{request.label} {request.content_name}", cap)
+            write_clip(path, take, f"{request.label} {request.content_name}", cap)
         if request.timeline is not None:
             plot_timeline(timeline_png, request.timeline, list(generator.styles), frames / generator.fps)
         files = {"files": [p.name for p in bvh]}
@@ -138,7 +138,7 @@ def transfer(
     for note in result.warnings:
         print(f"walkdiff: warning: {note}", file=sys.stderr)
     with output_set(out):
-        _write_clip(target, result.take, request.label, cap, others=((result.extra["source"], "source"),))
+        write_clip(target, result.take, request.label, cap, others=((result.extra["source"], "source"),))
         head = {"command": "transfer", "checkpoint": str(ckpt), "input": str(input)}
         found = {"root_path_error": result.extra["root_path_error"], "warnings": result.warnings}
         return _record(target.with_suffix(".json"), head, result, {"file": target.name}, cap, found)

@@ -5,6 +5,7 @@ decoded into takes with the kept parts exactly as given."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -87,7 +88,12 @@ class Edits:
             "overlap": request.overlap, "fix_feet": fix_feet, "candidates": candidates,
         }  # fmt: skip
         fill = (0, frames) if fill_only else (clip_a.num_frames, clip_a.num_frames + frames)
-        extra = {"fill": fill, "kept_error": error}
+        last = clip_a.slice(clip_a.num_frames - 1, clip_a.num_frames)
+        held_gap = replace(
+            last, rotations=last.rotations.repeat(frames, 0), positions=last.positions.repeat(frames, 0)
+        )
+        source = _joined([clip_a, held_gap, clip_b])  # the input, A's last pose held over the gap
+        extra = {"fill": fill, "kept_error": error, "source": self.take(source, request.rig)}
         return Generated(
             [take], settings, {"generate_s": round(elapsed, 3)}, seed=seed, rig=request.rig,
             label=request.label, extra=extra,

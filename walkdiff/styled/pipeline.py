@@ -195,7 +195,8 @@ class StyledGenerator(Pipeline, Edits):
         the model's skeleton), in `style` (as `sample` takes it; none: the model's own motion, led by the
         clips). B stays where its file puts it, or with `place` where the fill brings it. The take is A,
         the fill and B as one clip (A and B exactly as given), or with `fill_only` the fill alone;
-        `extra` holds the fill's frames and the kept frames' error in body heights. `candidates` fills
+        `extra` holds the fill's frames, the kept frames' error in body heights and the input as one take
+        (`source`: A, A's last pose held over the gap, B; what previews show beside). `candidates` fills
         are drawn together and the most typical is kept (1: the first drawn). A sampler named without
         `steps` takes FILL_STEPS (20) here: DPM-Solver++ over 20 steps is the default."""
         steps = fill_steps(sampler, steps)
