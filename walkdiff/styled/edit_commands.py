@@ -1,7 +1,7 @@
-"""`walkdiff inbetween` and `walkdiff edit`: the styled generator's edits written as one BVH and a JSON
-report beside it (`OUT.json`), all or none. The clips are what `StyledGenerator.inbetween` and `edit`
-(styled/pipeline.py, styled/editing.py) return to Python for the same seed and settings;
-`walkdiff sample --keys` is `sample` in styled/commands.py."""
+"""`walkdiff inbetween` and `walkdiff edit`: the styled generator's edits written as one BVH, a JSON
+report beside it (`OUT.json`) and GIF and MP4 previews of the input beside the result, all or none. The
+clips are what `StyledGenerator.inbetween` and `edit` (styled/pipeline.py, styled/editing.py) return to
+Python for the same seed and settings; `walkdiff sample --keys` is `sample` in styled/commands.py."""
 
 from __future__ import annotations
 
@@ -51,12 +51,12 @@ def inbetween(
     sampler = request.setdefault("sampler", FILL_SAMPLER)
     request = specs_first(request | {"steps": fill_steps(sampler, request.get("steps"))})
     out, report = _outputs(out, overwrite, gif)
+    cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     request = generator.request(style, unstyled=True, **request)
     result = generator.fill(request, a, b, frames, seed, place, fill_only, fix_feet, candidates)
     head = {"command": "inbetween", "checkpoint": str(ckpt), "a": str(a), "b": str(b)}
     found = {"fill_frames": list(result.extra["fill"]), "kept_error_body_heights": result.extra["kept_error"]}
-    cap = PreviewCap(preview_seconds) if gif else None
     beside = () if fill_only else ((result.extra["source"], "input: A, gap, B"),)
     return _written(out, report, head, result, found, cap, "in-between", beside)
 
@@ -81,12 +81,12 @@ def edit(
     `gif`) GIF and MP4 previews of the input beside the result."""
     request = specs_first(request)
     out, report = _outputs(out, overwrite, gif)
+    cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)
     request = generator.request(style, unstyled=True, **request)
     result = generator.edited(request, clip, keep, seed, ground, fix_feet)
     head = {"command": "edit", "checkpoint": str(ckpt), "input": str(clip)}
     found = {"kept_error_body_heights": result.extra["kept_error"]}
-    cap = PreviewCap(preview_seconds) if gif else None
     beside = ((result.extra["source"], "input"),)
     return _written(out, report, head, result, found, cap, f"kept: {keep}", beside)
 
