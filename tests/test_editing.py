@@ -97,6 +97,8 @@ def test_inbetween_defaults_to_eight_fills_in_twenty_dpm_solver_steps(styled, cl
     assert (settings["sampler"], settings["steps"], settings["candidates"]) == ("dpmpp", 20, 8)
     # A sampler that takes steps, named without them, takes the fill's 20; DDPM every trained step.
     assert model.inbetween(a, b, frames=12, sampler="ddim", candidates=1).settings["steps"] == 20
+    spec = {"name": "dpmpp"}  # the spec as a dict (or a SamplerChoice) without steps: the same
+    assert model.inbetween(a, b, frames=12, sampler=spec, candidates=1).settings["steps"] == 20
     ddpm = model.inbetween(a, b, frames=12, sampler="ddpm", candidates=1).settings
     assert (ddpm["sampler"], ddpm["steps"]) == ("ddpm", None)
     # The command's defaults are the API's.

@@ -256,7 +256,7 @@ def bench_inbetween(
     `stride`: frames between the gap starts cut in one clip; `samples`: fills per gap (seeds), each scored
     on its own; `resample`: RePaint resampling of the fills (editing.masked_sample; 0, the API's);
     `guide`: their reconstruction guidance (None: the API's); `candidates`: fills drawn for each, the
-    most typical kept (the API's default); `steps`: none, the API's for the sampler (fill_steps)."""
+    most typical kept (the API's default); `steps`: none, the fill's own (recorded as run)."""
     steps = fill_steps(sampler, steps)
     held = HeldOut(ckpt, evaluator, splits)
     held.generator.resample = resample

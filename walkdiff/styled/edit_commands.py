@@ -12,7 +12,7 @@ from walkdiff.common.files import check_free, output_set, write_json
 from walkdiff.models.pipeline import Generated, specs_first
 from walkdiff.preview.render import PREVIEW_SECONDS, PreviewCap
 from walkdiff.styled.commands import write_clip
-from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER, fill_steps
+from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER
 from walkdiff.styled.pipeline import StyledGenerator
 
 
@@ -48,8 +48,7 @@ def inbetween(
 ) -> dict:
     """`walkdiff inbetween`: A, a fill of `frames` frames and B as `out` (or the fill alone), `out`.json
     saying how it was made, and (with `gif`) GIF and MP4 previews of the input beside the result."""
-    sampler = request.setdefault("sampler", FILL_SAMPLER)
-    request = specs_first(request | {"steps": fill_steps(sampler, request.get("steps"))})
+    request = specs_first({"sampler": FILL_SAMPLER} | request)
     out, report = _outputs(out, overwrite, gif)
     cap = PreviewCap(preview_seconds) if gif else None
     generator = StyledGenerator.load(ckpt, device)

@@ -22,17 +22,16 @@ from walkdiff.styled.generation import check_finite
 
 # An in-between's sampler: DPM-Solver++ over 20 steps, 8 fills drawn together and the most typical kept
 # (editing.most_typical). On held-out clips this puts the 45-frame fill ahead of interpolation on L2P and
-# NPSS in less time than one fill of DDPM's 100 steps, which alone is level on L2P (docs/editing.md,
-# "Eight fills in twenty DPM-Solver++ steps"). cli/options.py repeats them (a test keeps them equal).
+# NPSS in about the time of one fill of DDPM's 100 steps, which alone is level on L2P (docs/editing.md,
+# "Measured", "At the defaults"). cli/options.py repeats them (a test keeps them equal).
 FILL_SAMPLER = "dpmpp"
 FILL_STEPS = 20
 CANDIDATES = 8
 
 
-def fill_steps(sampler, steps: int | None) -> int | None:
-    """An in-between's steps: FILL_STEPS where a sampler that takes steps is named without them (a
-    SamplerChoice or dict carries its own)."""
-    return FILL_STEPS if steps is None and sampler in ("ddim", "dpmpp") else steps
+def fill_steps(sampler: str, steps: int | None) -> int | None:
+    """An in-between's steps: FILL_STEPS where a sampler that takes steps is given without them."""
+    return FILL_STEPS if steps is None and sampler != "ddpm" else steps
 
 
 class Edits:
@@ -51,6 +50,8 @@ class Edits:
         if not isinstance(candidates, int) or isinstance(candidates, bool) or candidates < 1:
             raise WalkdiffError(f"--candidates: expected a whole number of fills >= 1, got {candidates!r}")
         clip_a, clip_b = self.source(a, "A", 1), self.source(b, "B", 1)
+        steps = fill_steps(request.sampling.name, request.sampling.steps)
+        request = replace(request, sampling=replace(request.sampling, steps=steps))
         model, profile = self.model, self.model.profile
         constraint, before, after = editing.inbetween_constraint(
             clip_a, clip_b, frames, profile, model.spec["window"], place

@@ -39,7 +39,7 @@ from walkdiff.motion.representation import FeatureLayout, decode, encode, start_
 from walkdiff.motion.skeleton import Motion
 from walkdiff.retarget.take import Take
 from walkdiff.retarget.target_rig import TargetRig
-from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER, Edits, fill_steps
+from walkdiff.styled.edits import CANDIDATES, FILL_SAMPLER, Edits
 from walkdiff.styled.generation import (
     Sampling,
     check_finite,
@@ -197,9 +197,8 @@ class StyledGenerator(Pipeline, Edits):
         the fill and B as one clip (A and B exactly as given), or with `fill_only` the fill alone;
         `extra` holds the fill's frames, the kept frames' error in body heights and the input as one take
         (`source`: A, A's last pose held over the gap, B; what previews show beside). `candidates` fills
-        are drawn together and the most typical is kept (1: the first drawn). A sampler named without
+        are drawn together and the most typical is kept (1: the first drawn). A sampler given without
         `steps` takes FILL_STEPS (20) here: DPM-Solver++ over 20 steps is the default."""
-        steps = fill_steps(sampler, steps)
         request = self.request(
             style, content, sampler, steps, eta, guidance, overlap, None, to, to_map, style_clips,
             match_clips=match_clips, unstyled=True,
